@@ -1,0 +1,1 @@
+"""Rendering of the glove hand and building of posture databases (may use pyrender)."""

@@ -1,0 +1,1 @@
+"""The ``glove`` command line: one subcommand per user-facing job."""

@@ -1,0 +1,1 @@
+"""Runtime tracking from RGB-D input. Must not import ``builder`` or pyrender."""
