@@ -9,13 +9,14 @@ line and exit code 2.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from types import EllipsisType
 
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 # ``None`` in a shape spec means "any size along this axis"; ``...`` (only first) means
 # "any number of leading axes".
-ShapeSpec = Sequence["int | None | type[Ellipsis]"]
+ShapeSpec = Sequence[int | None | EllipsisType]
 
 
 def _shape_text(shape: ShapeSpec) -> str:

@@ -1,0 +1,244 @@
+"""Headless rendering of the glove hand: color, exact class labels and metric depth.
+
+Uses pyrender on EGL (a GPU when there is one, Mesa's software rasteriser when not).
+pyrender renders through a 4x multisampled framebuffer, which blends class labels at
+edges; :class:`_SingleSampleRenderer` gives its framebuffer one sample so that every
+label pixel is exactly one class and rendering is deterministic.
+
+Frames: the hand is posed in the OpenCV camera frame (``p_cam = R @ p_hand + t``);
+the pyrender camera sits at the origin with the OpenGL axes (x right, y up, looking
+down -z), which is the one place where the two conventions meet
+(:data:`_CV_T_GL`).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+from dataclasses import dataclass
+from types import TracebackType
+
+import numpy as np
+import pyrender
+from numpy.typing import ArrayLike, NDArray
+from OpenGL import GL
+
+from glovedb._validate import as_array
+from glovedb.camera import CameraIntrinsics
+from glovedb.hand_model import N_JOINTS
+from glovedb.mesh import HandMesh, make_hand_mesh, pose_mesh, vertex_normals
+from glovedb.pattern import GlovePattern, face_labels, load_pattern
+
+# OpenGL camera axes expressed in the OpenCV camera frame.
+_CV_T_GL = np.diag([1.0, -1.0, -1.0, 1.0])
+_Z_NEAR_M, _Z_FAR_M = 0.05, 10.0
+
+
+def _srgb_to_linear(srgb: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Inverse of the sRGB transfer curve, per channel in 0..1."""
+    return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+
+
+class _SingleSampleRenderer(pyrender.Renderer):
+    """pyrender's renderer with a single-sample framebuffer (no anti-aliasing)."""
+
+    def _configure_main_framebuffer(self) -> None:
+        dims_before = self._main_fb_dims
+        super()._configure_main_framebuffer()
+        if self._main_fb_dims == dims_before:
+            return
+        width, height = self._main_fb_dims
+        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self._main_cb_ms)
+        GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_RGBA, width, height)
+        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self._main_db_ms)
+        GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_DEPTH_COMPONENT24, width, height)
+
+
+class _OffscreenRenderer(pyrender.OffscreenRenderer):
+    """An offscreen renderer that uses :class:`_SingleSampleRenderer`."""
+
+    _renderer: pyrender.Renderer
+
+    def _create(self) -> None:
+        super()._create()
+        self._renderer.delete()
+        self._renderer = _SingleSampleRenderer(self.viewport_width, self.viewport_height)
+
+
+@dataclass(frozen=True)
+class LabelRendering:
+    """Class labels and depth of one view of the glove hand.
+
+    Attributes
+    ----------
+    labels : (H, W) uint8
+        Glove class 1..10 of each pixel, 0 for background.
+    depth_m : (H, W) float32
+        Distance along the optical axis (z), 0 for background.
+    """
+
+    labels: NDArray[np.uint8]
+    depth_m: NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class Rendering(LabelRendering):
+    """Shaded color, class labels and depth of one view of the glove hand.
+
+    Attributes
+    ----------
+    color : (H, W, 3) uint8
+        Shaded sRGB image.
+    """
+
+    color: NDArray[np.uint8]
+
+
+class GloveRenderer:
+    """Renders the skinned glove hand for one camera; reuse it across many calls.
+
+    Parameters
+    ----------
+    camera : CameraIntrinsics
+    mesh : HandMesh, optional
+        Defaults to :func:`~glovedb.mesh.make_hand_mesh`.
+    pattern : GlovePattern, optional
+        Defaults to :func:`~glovedb.pattern.load_pattern`.
+    background_rgb : (3,) int
+        Color of pixels the hand does not cover.
+
+    Notes
+    -----
+    One OpenGL context lives as long as the object; call :meth:`close` (or use it as
+    a context manager) to free it. Build one renderer per process: contexts must not
+    cross a ``fork``.
+    """
+
+    def __init__(
+        self,
+        camera: CameraIntrinsics,
+        *,
+        mesh: HandMesh | None = None,
+        pattern: GlovePattern | None = None,
+        background_rgb: tuple[int, int, int] = (0, 0, 0),
+    ) -> None:
+        self.camera = camera
+        self.mesh = mesh if mesh is not None else make_hand_mesh()
+        self.pattern = pattern if pattern is not None else load_pattern()
+        labels = face_labels(self.mesh, self.pattern)
+        # Split vertices on patch borders so every triangle's corners carry its color.
+        corner_keys = self.mesh.faces.astype(np.int64) * 16 + labels[:, None]
+        keys, inverse = np.unique(corner_keys.ravel(), return_inverse=True)
+        self._source_vertex = keys // 16
+        self._faces = inverse.reshape(-1, 3).astype(np.uint32)
+        vertex_label = (keys % 16).astype(np.uint8)
+        self._label_colors = np.repeat(vertex_label[:, None] / 255.0, 3, axis=1)
+        # pyrender's lit shader writes gamma-encoded output: hand it linear colors.
+        palette = _srgb_to_linear(self.pattern.palette()[vertex_label] / 255.0)
+        self._shade_colors = np.concatenate([palette, np.ones((len(palette), 1))], axis=1)
+
+        background = np.append(np.asarray(background_rgb) / 255.0, 1.0)
+        self._color_scene = pyrender.Scene(bg_color=background, ambient_light=[0.45] * 3)
+        self._label_scene = pyrender.Scene(bg_color=[0.0, 0.0, 0.0, 1.0], ambient_light=[0.0] * 3)
+        gl_camera = pyrender.IntrinsicsCamera(
+            camera.fx,
+            camera.fy,
+            camera.cx + 0.5,  # pyrender measures from the pixel corner, OpenCV the centre
+            camera.cy + 0.5,
+            znear=_Z_NEAR_M,
+            zfar=_Z_FAR_M,
+        )
+        for scene in (self._color_scene, self._label_scene):
+            scene.add(gl_camera, pose=_CV_T_GL)
+        key_light = pyrender.DirectionalLight(color=np.ones(3), intensity=1.6)
+        self._color_scene.add(key_light, pose=_CV_T_GL)
+        self._material = pyrender.MetallicRoughnessMaterial(
+            baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0, roughnessFactor=0.9
+        )
+        self._renderer = _OffscreenRenderer(camera.width, camera.height)
+        self._nodes: dict[str, pyrender.Node] = {}
+
+    def render(
+        self, posture_rad: ArrayLike, rotation: ArrayLike, translation_m: ArrayLike
+    ) -> Rendering:
+        """Shaded color, labels and depth of the hand in one pose.
+
+        Parameters
+        ----------
+        posture_rad : (20,) float
+        rotation : (3, 3) float
+            ``cam_R_hand``.
+        translation_m : (3,) float
+            Wrist position in the camera frame.
+
+        Returns
+        -------
+        Rendering
+        """
+        positions, normals = self._posed_vertices(posture_rad, rotation, translation_m)
+        self._set_mesh("color", positions, normals, self._shade_colors)
+        color, _ = self._renderer.render(self._color_scene)
+        labels, depth = self._render_labels(positions, normals)
+        return Rendering(labels, depth, np.ascontiguousarray(color[..., :3]))
+
+    def render_labels(
+        self, posture_rad: ArrayLike, rotation: ArrayLike, translation_m: ArrayLike
+    ) -> LabelRendering:
+        """Labels and depth only (faster). Arguments as :meth:`render`."""
+        positions, normals = self._posed_vertices(posture_rad, rotation, translation_m)
+        return LabelRendering(*self._render_labels(positions, normals))
+
+    def close(self) -> None:
+        """Release the OpenGL context."""
+        self._renderer.delete()
+
+    def __enter__(self) -> GloveRenderer:
+        return self
+
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        value: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def _posed_vertices(
+        self, posture_rad: ArrayLike, rotation: ArrayLike, translation_m: ArrayLike
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        posture = as_array("posture_rad", posture_rad, (N_JOINTS,), np.float64, finite=True)
+        cam_R_hand = as_array("rotation", rotation, (3, 3), np.float64, finite=True)
+        translation = as_array("translation_m", translation_m, (3,), np.float64, finite=True)
+        hand_vertices = pose_mesh(self.mesh, posture)
+        camera_vertices = hand_vertices @ cam_R_hand.T + translation
+        normals = vertex_normals(camera_vertices, self.mesh.faces)
+        return camera_vertices[self._source_vertex], normals[self._source_vertex]
+
+    def _render_labels(
+        self, positions: NDArray[np.float64], normals: NDArray[np.float64]
+    ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+        self._set_mesh("label", positions, normals, self._label_colors)
+        flags = pyrender.RenderFlags.FLAT
+        labels, depth = self._renderer.render(self._label_scene, flags=flags)
+        return np.ascontiguousarray(labels[..., 0]), depth.astype(np.float32)
+
+    def _set_mesh(
+        self,
+        which: str,
+        positions: NDArray[np.float64],
+        normals: NDArray[np.float64],
+        colors: NDArray[np.float64],
+    ) -> None:
+        scene = self._color_scene if which == "color" else self._label_scene
+        if which in self._nodes:
+            scene.remove_node(self._nodes[which])
+        primitive = pyrender.Primitive(
+            positions=positions.astype(np.float32),
+            normals=normals.astype(np.float32),
+            color_0=colors.astype(np.float32),
+            indices=self._faces,
+            material=self._material,
+        )
+        self._nodes[which] = scene.add(pyrender.Mesh([primitive]))

@@ -1,0 +1,1 @@
+"""One module per ``glove`` subcommand, each with ``add_parser(subparsers)``."""
