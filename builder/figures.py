@@ -95,13 +95,19 @@ def pattern_sheet(renderer: GloveRenderer, *, distance_m: float = 0.45) -> NDArr
     return np.hstack(views + [legend])
 
 
-def save_rgb(path: str | Path, image: NDArray[np.uint8]) -> Path:
-    """Write an RGB image (PNG or JPEG by extension); ``ValueError`` if it cannot."""
+def check_image_path(path: str | Path) -> Path:
+    """``path`` as a Path if an image can be written there; else a one-line ``ValueError``."""
     path = Path(path)
     if path.suffix.lower() not in (".png", ".jpg", ".jpeg"):
         raise ValueError(f"{path}: expected a .png or .jpg file name")
-    if not path.parent.exists():
+    if not path.parent.is_dir():
         raise ValueError(f"{path.parent}: folder does not exist")
+    return path
+
+
+def save_rgb(path: str | Path, image: NDArray[np.uint8]) -> Path:
+    """Write an RGB image (PNG or JPEG by extension); ``ValueError`` if it cannot."""
+    path = check_image_path(path)
     if not cv2.imwrite(str(path), np.ascontiguousarray(image[..., ::-1])):
         raise ValueError(f"{path}: could not write the image")
     return path

@@ -66,6 +66,29 @@ class _OffscreenRenderer(pyrender.OffscreenRenderer):
         self._renderer.delete()
         self._renderer = _SingleSampleRenderer(self.viewport_width, self.viewport_height)
 
+    def delete(self) -> None:
+        """Free this renderer's context without terminating the shared EGL display.
+
+        pyrender's EGL platform calls ``eglTerminate`` on delete, which would kill the
+        contexts of every other renderer in the process.
+        """
+        platform = self._platform
+        if platform is None or getattr(platform, "_egl_display", None) is None:
+            super().delete()
+            return
+        from OpenGL import EGL
+
+        platform.make_current()
+        self._renderer.delete()
+        display, context = platform._egl_display, platform._egl_context
+        EGL.eglMakeCurrent(display, EGL.EGL_NO_SURFACE, EGL.EGL_NO_SURFACE, EGL.EGL_NO_CONTEXT)
+        if context is not None:
+            EGL.eglDestroyContext(display, context)
+        platform._egl_context = None
+        platform._egl_display = None
+        self._renderer = None
+        self._platform = None
+
 
 @dataclass(frozen=True)
 class LabelRendering:
@@ -157,7 +180,7 @@ class GloveRenderer:
         self._material = pyrender.MetallicRoughnessMaterial(
             baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0, roughnessFactor=0.9
         )
-        self._renderer = _OffscreenRenderer(camera.width, camera.height)
+        self._renderer: _OffscreenRenderer | None = _OffscreenRenderer(camera.width, camera.height)
         self._nodes: dict[str, pyrender.Node] = {}
 
     def render(
@@ -179,7 +202,7 @@ class GloveRenderer:
         """
         positions, normals = self._posed_vertices(posture_rad, rotation, translation_m)
         self._set_mesh("color", positions, normals, self._shade_colors)
-        color, _ = self._renderer.render(self._color_scene)
+        color, _ = self._live_renderer().render(self._color_scene)
         labels, depth = self._render_labels(positions, normals)
         return Rendering(labels, depth, np.ascontiguousarray(color[..., :3]))
 
@@ -191,8 +214,10 @@ class GloveRenderer:
         return LabelRendering(*self._render_labels(positions, normals))
 
     def close(self) -> None:
-        """Release the OpenGL context."""
-        self._renderer.delete()
+        """Release the OpenGL context; closing twice is harmless."""
+        if self._renderer is not None:
+            self._renderer.delete()
+            self._renderer = None
 
     def __enter__(self) -> GloveRenderer:
         return self
@@ -204,6 +229,11 @@ class GloveRenderer:
         traceback: TracebackType | None,
     ) -> None:
         self.close()
+
+    def _live_renderer(self) -> _OffscreenRenderer:
+        if self._renderer is None:
+            raise ValueError("the renderer is closed")
+        return self._renderer
 
     def _posed_vertices(
         self, posture_rad: ArrayLike, rotation: ArrayLike, translation_m: ArrayLike
@@ -221,7 +251,7 @@ class GloveRenderer:
     ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
         self._set_mesh("label", positions, normals, self._label_colors)
         flags = pyrender.RenderFlags.FLAT
-        labels, depth = self._renderer.render(self._label_scene, flags=flags)
+        labels, depth = self._live_renderer().render(self._label_scene, flags=flags)
         return np.ascontiguousarray(labels[..., 0]), depth.astype(np.float32)
 
     def _set_mesh(

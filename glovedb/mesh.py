@@ -27,7 +27,7 @@ from glovedb.surface_nets import surface_nets
 DEFAULT_SPACING_M = 0.002
 # Width of the blend between a vertex's nearest bone and the others (metres of extra
 # core distance per e-fold of weight), and the smallest weight kept.
-_BLEND_WIDTH_M = 0.0035
+_BLEND_WIDTH_M = 0.0015
 _MIN_WEIGHT = 0.01
 
 
@@ -188,10 +188,25 @@ def bone_core_distances(
 def skinning_weights(
     vertices: ArrayLike, shape: HandShape, skeleton: Skeleton
 ) -> NDArray[np.float32]:
-    """LBS weights ``(V, 16)`` float32 from bone-core distances (see module docstring)."""
+    """LBS weights ``(V, 16)`` float32 from bone-core distances (see module docstring).
+
+    Weights fall off by ``e`` every ``_BLEND_WIDTH_M`` of extra distance to a bone's
+    core compared with the nearest core, so a joint blends over about a finger radius
+    on each side; weights under ``_MIN_WEIGHT`` are dropped.
+    """
     distances = bone_core_distances(vertices, shape, skeleton)
-    excess = distances - distances.min(axis=1, keepdims=True)
+    nearest = np.argmin(distances, axis=1)
+    excess = distances - distances[np.arange(len(distances)), nearest][:, None]
     weights = np.exp(-excess / _BLEND_WIDTH_M)
+    # A vertex blends only along its own chain: a finger vertex with the palm and its
+    # own finger's bones, a palm vertex with the fingers' first segments; never with
+    # a neighbouring finger that happens to be close.
+    finger = (np.arange(N_BONES) - 1) // 3
+    own_finger = (finger[None, :] == finger[nearest][:, None]) & (nearest[:, None] > 0)
+    first_segments = ((np.arange(N_BONES) - 1) % 3 == 0)[None, :] & (nearest[:, None] == 0)
+    allowed = own_finger | first_segments
+    allowed[:, 0] = True
+    weights[~allowed] = 0.0
     weights[weights < _MIN_WEIGHT] = 0.0
     return (weights / weights.sum(axis=1, keepdims=True)).astype(np.float32)
 

@@ -19,10 +19,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from builder.figures import pattern_sheet, save_rgb
+    from builder.figures import check_image_path, pattern_sheet, save_rgb
     from builder.render import GloveRenderer
     from glovedb.camera import KINECT_V1
 
+    check_image_path(args.out)
     with GloveRenderer(KINECT_V1) as renderer:
         path = save_rgb(args.out, pattern_sheet(renderer))
     print(f"wrote {path}")

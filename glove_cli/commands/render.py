@@ -41,7 +41,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from builder.figures import rendering_panels, save_rgb, title_bar
+    from builder.figures import check_image_path, rendering_panels, save_rgb, title_bar
     from builder.render import GloveRenderer
     from glovedb.camera import KINECT_V1
     from glovedb.hand_model import make_skeleton
@@ -49,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from glovedb.postures import named_posture
     from glovedb.views import HAND_CENTRE, named_view, pose_for_view, view_direction
 
+    check_image_path(args.out)
     posture = named_posture(args.posture)
     skeleton = make_skeleton(args.hand_length)
     if args.azimuth is not None:

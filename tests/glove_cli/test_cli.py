@@ -1,0 +1,66 @@
+"""The ``glove`` command line: help, exit codes, one-line errors, the render picture."""
+
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from glove_cli.main import main
+
+
+def run_glove(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "glove_cli", *args], capture_output=True, text=True, timeout=300
+    )
+
+
+def test_help_lists_the_commands(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    for command in ("demo", "render", "pattern"):
+        assert command in out
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ([], "required: COMMAND"),
+        (["render"], "--posture"),
+        (["render", "--posture", "wave"], "unknown posture 'wave'"),
+        (["render", "--posture", "open", "--view", "left"], "invalid choice"),
+        (["render", "--posture", "open", "--out", "x.txt"], ".png or .jpg"),
+        (["render", "--posture", "open", "--out", "/no/such/dir/x.png"], "does not exist"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line(capsys, args, message):
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert message in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+@pytest.mark.gl
+def test_render_writes_color_labels_and_depth_side_by_side(tmp_path):
+    out = tmp_path / "pinch.png"
+    result = run_glove("render", "--posture", "pinch", "--view", "thumb", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    picture = cv2.imread(str(out))
+    assert picture.shape[1] == 3 * 640 and picture.shape[0] > 480
+    panels = np.split(picture[:480], 3, axis=1)
+    # Every panel shows the same silhouette (the hand covers the same pixels).
+    masks = [panel[40:].max(axis=2) > 0 for panel in panels]
+    assert masks[0].sum() > 5000
+    assert np.mean(masks[0] == masks[1]) > 0.99 and np.mean(masks[1] == masks[2]) > 0.99
+
+
+@pytest.mark.gl
+def test_demo_renders_every_named_posture(tmp_path):
+    result = run_glove("demo", "--out", str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    assert "rendered 10 named postures" in result.stdout
+    assert cv2.imread(str(tmp_path / "postures.png")) is not None
+    assert cv2.imread(str(tmp_path / "pattern.png")) is not None

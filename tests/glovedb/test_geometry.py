@@ -1,0 +1,101 @@
+"""Rotations, camera intrinsics and views around the hand."""
+
+import json
+
+import numpy as np
+import pytest
+
+from glovedb.camera import KINECT_V1, CameraIntrinsics, load_intrinsics, save_intrinsics
+from glovedb.rotations import (
+    axis_angle_to_matrix,
+    geodesic_angle,
+    look_at,
+    matrix_to_quaternion,
+    quaternion_to_matrix,
+    slerp,
+)
+from glovedb.views import NAMED_VIEWS, named_view, pose_for_view
+
+
+def random_rotations(count: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return axis_angle_to_matrix(rng.normal(size=(count, 3)), rng.uniform(0, np.pi, count))
+
+
+def test_quaternion_round_trip_and_w_first():
+    rotations = random_rotations(100)
+    quaternions = matrix_to_quaternion(rotations)
+    assert quaternions.shape == (100, 4) and np.all(quaternions[:, 0] >= 0)
+    np.testing.assert_allclose(quaternion_to_matrix(quaternions), rotations, atol=1e-12)
+    quarter_turn_z = axis_angle_to_matrix([0, 0, 1], np.pi / 2)
+    expected = [np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)]
+    np.testing.assert_allclose(matrix_to_quaternion(quarter_turn_z), expected, atol=1e-12)
+
+
+def test_slerp_endpoints_and_midpoint():
+    a, b = matrix_to_quaternion(random_rotations(2, seed=4))
+    np.testing.assert_allclose(quaternion_to_matrix(slerp(a, b, 0.0)), quaternion_to_matrix(a))
+    np.testing.assert_allclose(quaternion_to_matrix(slerp(a, b, 1.0)), quaternion_to_matrix(b))
+    middle = quaternion_to_matrix(slerp(a, b, 0.5))
+    ra, rb = quaternion_to_matrix(a), quaternion_to_matrix(b)
+    np.testing.assert_allclose(geodesic_angle(ra, middle), geodesic_angle(ra, rb) / 2, atol=1e-9)
+
+
+def test_geodesic_angle_of_a_known_offset():
+    base = random_rotations(1, seed=2)[0]
+    offset = axis_angle_to_matrix([0.3, -0.2, 0.9], 0.25)
+    np.testing.assert_allclose(geodesic_angle(base, base @ offset), 0.25, atol=1e-9)
+
+
+def test_look_at_points_the_optical_axis_and_keeps_up():
+    rotation = look_at([0, 0, -1], [0, 0, 0], [0, -1, 0])
+    np.testing.assert_allclose(rotation, np.eye(3), atol=1e-12)
+    with pytest.raises(ValueError, match="parallel"):
+        look_at([0, 0, -1], [0, 0, 0], [0, 0, 1])
+
+
+def test_projection_round_trip_and_json_format(tmp_path):
+    camera = CameraIntrinsics(320, 240, 287.26, 287.26, 159.0, 119.0)
+    points = np.array([[0.01, -0.02, 0.3], [0.0, 0.0, 1.0]])
+    pixels = camera.project(points)
+    np.testing.assert_allclose(pixels[1], [159.0, 119.0])
+    np.testing.assert_allclose(camera.back_project(pixels, points[:, 2]), points, atol=1e-12)
+    path = tmp_path / "intrinsic.json"
+    save_intrinsics(camera, path)
+    stored = json.loads(path.read_text())
+    assert stored["intrinsic_matrix"][6:8] == [159.0, 119.0]  # column-major, as Open3D
+    assert load_intrinsics(path) == camera
+
+
+def test_scaled_camera_keeps_pixel_centres():
+    half = KINECT_V1.scaled(0.5)
+    point = np.array([0.05, -0.03, 0.6])
+    np.testing.assert_allclose(half.project(point), (KINECT_V1.project(point) + 0.5) * 0.5 - 0.5)
+
+
+def test_malformed_intrinsics_give_one_clear_error(tmp_path):
+    path = tmp_path / "intrinsic.json"
+    path.write_text('{"width": 640}')
+    with pytest.raises(ValueError, match="malformed camera intrinsics"):
+        load_intrinsics(path)
+    with pytest.raises(ValueError, match="cannot read"):
+        load_intrinsics(tmp_path / "missing.json")
+    with pytest.raises(ValueError, match="focal"):
+        CameraIntrinsics(640, 480, 0.0, 525.0, 319.5, 239.5)
+
+
+@pytest.mark.parametrize("name", sorted(NAMED_VIEWS))
+def test_named_views_put_the_hand_centre_on_the_optical_axis(name):
+    rotation, translation = named_view(name, 0.5, 0.19)
+    centre = rotation @ np.array([0.0, 0.42 * 0.19, 0.0]) + translation
+    np.testing.assert_allclose(centre, [0.0, 0.0, 0.5], atol=1e-12)
+    direction = np.array(NAMED_VIEWS[name])
+    # The camera sits along the view direction: the hand-frame direction maps to -z.
+    np.testing.assert_allclose(rotation @ direction, [0.0, 0.0, -1.0], atol=1e-12)
+
+
+def test_roll_rotates_about_the_optical_axis():
+    plain, _ = pose_for_view([0, 0, 1], 0.5)
+    rolled, _ = pose_for_view([0, 0, 1], 0.5, roll_rad=0.3)
+    np.testing.assert_allclose(geodesic_angle(plain, rolled), 0.3, atol=1e-12)
+    np.testing.assert_allclose(rolled[2], plain[2], atol=1e-12)
