@@ -1,0 +1,353 @@
+"""Training of the fingertip Hough forest from depth images with known fingertips.
+
+Training takes plain arrays so any renderer (or real annotated data) can feed it:
+depth images in metres, the camera intrinsics and, per image, the 3D fingertips in the
+camera frame (NaN for a fingertip that is not visible). Pixels within
+``tip_radius_m`` (3D) of a visible fingertip are positives; each positive also carries
+its 3D offset to that fingertip. A scikit-learn forest learns the fingertip
+probability; every leaf then stores the mean offset of the positive training pixels
+that reach it (found with ``forest.apply``). The result is exported to the plain-array
+:class:`tracker.fingertips.forest.FingertipForest`, so inference needs neither
+scikit-learn nor pickle.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from typing import Literal
+
+import numpy as np
+import sklearn
+from numpy.typing import ArrayLike, NDArray
+from sklearn.ensemble import ExtraTreesClassifier, RandomForestClassifier
+
+from glovedb import __version__
+from glovedb._validate import as_array, check_choice
+from tracker.fingertips.features import (
+    backproject,
+    foreground_pixels,
+    intrinsics_array,
+    mask_depth_range,
+    pixel_features,
+    random_offsets,
+)
+from tracker.fingertips.forest import FingertipForest
+
+ForestKind = Literal["extra_trees", "random_forest"]
+FOREST_KINDS: tuple[ForestKind, ...] = ("extra_trees", "random_forest")
+
+N_TIPS = 5
+
+
+@dataclass(frozen=True)
+class FingertipTrainingConfig:
+    """Settings of feature generation, pixel sampling and the forest.
+
+    Attributes
+    ----------
+    n_features : int
+        Number of random probe-offset pairs ``F``.
+    max_offset_m : float
+        Largest lateral probe distance, metres.
+    unary_fraction : float
+        Fraction of features comparing one probe with the reference pixel.
+    tip_radius_m : float
+        A pixel is a fingertip pixel within this 3D distance of a visible tip, metres.
+    depth_range_m : tuple of float
+        Working range (near, far) in metres; depth outside it is background.
+    pixels_per_image : int
+        Pixels sampled per training image.
+    positive_fraction : float
+        Largest share of fingertip pixels among the sampled ones (they are rare, so
+        they are over-sampled; leaf probabilities refer to this balance).
+    forest_kind : {"extra_trees", "random_forest"}
+    n_trees : int
+    max_depth : int
+    min_samples_leaf : int
+    max_features : int
+        Features tried per split.
+    seed : int
+        Seeds the offsets, the pixel sampling and the forest.
+    n_jobs : int
+        Worker processes for fitting (scikit-learn ``n_jobs``).
+    """
+
+    n_features: int = 400
+    max_offset_m: float = 0.08
+    unary_fraction: float = 0.5
+    tip_radius_m: float = 0.015
+    depth_range_m: tuple[float, float] = (0.1, 1.0)
+    pixels_per_image: int = 2000
+    positive_fraction: float = 0.4
+    forest_kind: ForestKind = "extra_trees"
+    n_trees: int = 8
+    max_depth: int = 18
+    min_samples_leaf: int = 5
+    max_features: int = 40
+    seed: int = 0
+    n_jobs: int = 1
+
+
+@dataclass(frozen=True)
+class TrainingSamples:
+    """Sampled training pixels.
+
+    Attributes
+    ----------
+    features : (N, F) float32
+        Feature values, metres.
+    is_tip : (N,) bool
+        Whether the pixel lies within the tip radius of a visible fingertip.
+    offset_m : (N, 3) float32
+        Offset from the pixel's 3D point to its nearest visible fingertip, metres
+        (NaN when the image has no visible fingertip).
+    """
+
+    features: NDArray[np.float32]
+    is_tip: NDArray[np.bool_]
+    offset_m: NDArray[np.float32]
+
+
+def label_points(
+    points_m: ArrayLike, tips_m: ArrayLike, *, tip_radius_m: float
+) -> tuple[NDArray[np.bool_], NDArray[np.float32]]:
+    """Fingertip label and offset to the nearest visible fingertip of 3D points.
+
+    Parameters
+    ----------
+    points_m : (N, 3) float
+        Camera-frame points, metres.
+    tips_m : (5, 3) float
+        Fingertips in the camera frame, metres; NaN rows are not visible.
+    tip_radius_m : float
+
+    Returns
+    -------
+    is_tip : (N,) bool
+    offset_m : (N, 3) float32
+        ``tip - point`` for the nearest visible tip; NaN if no tip is visible.
+    """
+    points = as_array("points_m", points_m, (None, 3), np.float64, kind="fiu", finite=True)
+    tips = as_array("tips_m", tips_m, (N_TIPS, 3), np.float64, kind="fiu")
+    visible = tips[np.all(np.isfinite(tips), axis=1)]
+    if visible.shape[0] == 0:
+        return np.zeros(points.shape[0], bool), np.full(points.shape, np.nan, np.float32)
+    delta = visible[None, :, :] - points[:, None, :]
+    distance = np.linalg.norm(delta, axis=2)
+    nearest = np.argmin(distance, axis=1)
+    rows = np.arange(points.shape[0])
+    is_tip = distance[rows, nearest] <= tip_radius_m
+    return is_tip, delta[rows, nearest].astype(np.float32)
+
+
+def sample_image(
+    depth_m: NDArray[np.float32],
+    intrinsics: NDArray[np.float64],
+    tips_m: NDArray[np.float64],
+    offsets_m: NDArray[np.float32],
+    config: FingertipTrainingConfig,
+    rng: np.random.Generator,
+) -> TrainingSamples:
+    """Sample, label and featurise the pixels of one training image."""
+    near, far = config.depth_range_m
+    masked = mask_depth_range(depth_m, near_m=near, far_m=far)
+    pixels = foreground_pixels(masked)
+    points = backproject(pixels, masked[pixels[:, 1], pixels[:, 0]], intrinsics)
+    is_tip, offset = label_points(points, tips_m, tip_radius_m=config.tip_radius_m)
+    positives, negatives = np.flatnonzero(is_tip), np.flatnonzero(~is_tip)
+    n_pos = min(positives.size, int(config.positive_fraction * config.pixels_per_image))
+    n_neg = min(negatives.size, config.pixels_per_image - n_pos)
+    chosen = np.concatenate(
+        [
+            rng.choice(positives, n_pos, replace=False),
+            rng.choice(negatives, n_neg, replace=False),
+        ]
+    )
+    features = pixel_features(masked, pixels[chosen], offsets_m, intrinsics)
+    return TrainingSamples(features, is_tip[chosen], offset[chosen])
+
+
+def sample_training_set(
+    depth_images_m: ArrayLike,
+    intrinsics: ArrayLike,
+    tips_m: ArrayLike,
+    offsets_m: ArrayLike,
+    *,
+    config: FingertipTrainingConfig = FingertipTrainingConfig(),
+) -> TrainingSamples:
+    """Sample training pixels from a stack of depth images.
+
+    Parameters
+    ----------
+    depth_images_m : (N, H, W) float32
+        Depth in metres, 0 where missing.
+    intrinsics : (4,) or (N, 4) float
+        ``(fx, fy, cx, cy)`` in pixels, shared or per image.
+    tips_m : (N, 5, 3) float
+        Fingertips (thumb, index, middle, ring, little) in the camera frame, metres;
+        NaN for a fingertip that is not visible.
+    offsets_m : (F, 2, 2) float32
+        Feature probe offsets (:func:`tracker.fingertips.features.random_offsets`).
+    config : FingertipTrainingConfig
+
+    Returns
+    -------
+    TrainingSamples
+    """
+    depth = as_array("depth_images_m", depth_images_m, (None, None, None), np.float32, kind="fiu")
+    n_images = depth.shape[0]
+    tips = as_array("tips_m", tips_m, (n_images, N_TIPS, 3), np.float64, kind="fiu")
+    cameras = np.asarray(intrinsics, dtype=np.float64)
+    cameras = np.broadcast_to(cameras, (n_images, 4)) if cameras.ndim == 1 else cameras
+    cameras = as_array("intrinsics", cameras, (n_images, 4), np.float64, finite=True)
+    offsets = as_array("offsets_m", offsets_m, (None, 2, 2), np.float32, kind="f", finite=True)
+    rng = np.random.default_rng(config.seed)
+    parts = [
+        sample_image(depth[k], intrinsics_array(cameras[k]), tips[k], offsets, config, rng)
+        for k in range(n_images)
+    ]
+    return TrainingSamples(
+        features=np.concatenate([p.features for p in parts]),
+        is_tip=np.concatenate([p.is_tip for p in parts]),
+        offset_m=np.concatenate([p.offset_m for p in parts]),
+    )
+
+
+def fit_classifier(
+    samples: TrainingSamples, *, config: FingertipTrainingConfig = FingertipTrainingConfig()
+) -> ExtraTreesClassifier | RandomForestClassifier:
+    """Fit the scikit-learn forest on the fingertip labels."""
+    kind = check_choice("forest_kind", config.forest_kind, FOREST_KINDS)
+    if samples.is_tip.all() or not samples.is_tip.any():
+        raise ValueError("samples: need both fingertip and non-fingertip pixels to train")
+    forest_class = ExtraTreesClassifier if kind == "extra_trees" else RandomForestClassifier
+    classifier = forest_class(
+        n_estimators=config.n_trees,
+        max_depth=config.max_depth,
+        min_samples_leaf=config.min_samples_leaf,
+        max_features=min(config.max_features, samples.features.shape[1]),
+        random_state=config.seed,
+        n_jobs=config.n_jobs,
+    )
+    classifier.fit(samples.features, samples.is_tip)
+    return classifier
+
+
+def _threshold_float32(threshold: NDArray[np.float64]) -> NDArray[np.float32]:
+    """Largest float32 not above each threshold: ``x <= t`` is unchanged for float32 ``x``."""
+    rounded = threshold.astype(np.float32)
+    above = rounded.astype(np.float64) > threshold
+    rounded[above] = np.nextafter(rounded[above], np.float32(-np.inf))
+    return rounded
+
+
+def leaf_offsets(
+    classifier: ExtraTreesClassifier | RandomForestClassifier, samples: TrainingSamples
+) -> list[NDArray[np.float32]]:
+    """Per tree, the mean offset ``(n_nodes, 3)`` of the positive pixels reaching each node.
+
+    Nodes that no positive training pixel reaches get a zero offset.
+    """
+    positive = samples.is_tip & np.all(np.isfinite(samples.offset_m), axis=1)
+    leaves = classifier.apply(samples.features[positive])
+    offsets = samples.offset_m[positive].astype(np.float64)
+    result = []
+    for t, estimator in enumerate(classifier.estimators_):
+        n_nodes = estimator.tree_.node_count
+        count = np.bincount(leaves[:, t], minlength=n_nodes)
+        total = np.stack(
+            [np.bincount(leaves[:, t], offsets[:, k], minlength=n_nodes) for k in range(3)], 1
+        )
+        mean = np.divide(total, count[:, None], out=np.zeros_like(total), where=count[:, None] > 0)
+        result.append(mean.astype(np.float32))
+    return result
+
+
+def export_forest(
+    classifier: ExtraTreesClassifier | RandomForestClassifier,
+    samples: TrainingSamples,
+    offsets_m: NDArray[np.float32],
+    *,
+    config: FingertipTrainingConfig,
+    extra_settings: dict[str, object] | None = None,
+) -> FingertipForest:
+    """Pack a fitted scikit-learn forest and its leaf offsets into plain arrays."""
+    per_tree_offsets = leaf_offsets(classifier, samples)
+    columns: dict[str, list[NDArray]] = {
+        k: [] for k in ("feature", "threshold", "left", "right", "probability")
+    }
+    roots = []
+    start = 0
+    for estimator in classifier.estimators_:
+        tree = estimator.tree_
+        split = tree.children_left >= 0
+        value = tree.value[:, 0, :]
+        roots.append(start)
+        columns["feature"].append(np.where(split, tree.feature, -1))
+        columns["threshold"].append(
+            np.where(split, _threshold_float32(tree.threshold), np.float32(0.0))
+        )
+        columns["left"].append(np.where(split, tree.children_left + start, -1))
+        columns["right"].append(np.where(split, tree.children_right + start, -1))
+        columns["probability"].append(value[:, 1] / value.sum(axis=1))
+        start += tree.node_count
+    settings = {
+        **asdict(config),
+        "sklearn_version": sklearn.__version__,
+        "n_training_pixels": int(samples.is_tip.size),
+        "n_positive_pixels": int(samples.is_tip.sum()),
+        **(extra_settings or {}),
+    }
+    return FingertipForest(
+        offsets_m=offsets_m.astype(np.float32),
+        depth_range_m=(float(config.depth_range_m[0]), float(config.depth_range_m[1])),
+        tree_roots=np.asarray(roots, dtype=np.int32),
+        node_feature=np.concatenate(columns["feature"]).astype(np.int32),
+        node_threshold=np.concatenate(columns["threshold"]).astype(np.float32),
+        node_left=np.concatenate(columns["left"]).astype(np.int32),
+        node_right=np.concatenate(columns["right"]).astype(np.int32),
+        node_probability=np.concatenate(columns["probability"]).astype(np.float32),
+        node_offset_m=np.concatenate(per_tree_offsets).astype(np.float32),
+        settings_json=json.dumps(settings, sort_keys=True),
+        version=__version__,
+    )
+
+
+def train_fingertip_forest(
+    depth_images_m: ArrayLike,
+    intrinsics: ArrayLike,
+    tips_m: ArrayLike,
+    *,
+    config: FingertipTrainingConfig = FingertipTrainingConfig(),
+) -> FingertipForest:
+    """Train the fingertip Hough forest from depth images with known fingertips.
+
+    Parameters
+    ----------
+    depth_images_m : (N, H, W) float32
+        Depth in metres, 0 where missing.
+    intrinsics : (4,) or (N, 4) float
+        ``(fx, fy, cx, cy)`` in pixels, shared or per image.
+    tips_m : (N, 5, 3) float
+        Fingertips (thumb, index, middle, ring, little) in the camera frame, metres;
+        NaN for a fingertip that is not visible.
+    config : FingertipTrainingConfig
+
+    Returns
+    -------
+    FingertipForest
+        Save it with :func:`tracker.fingertips.forest.save_forest`.
+    """
+    offsets = random_offsets(
+        config.n_features,
+        max_offset_m=config.max_offset_m,
+        unary_fraction=config.unary_fraction,
+        seed=config.seed,
+    )
+    samples = sample_training_set(depth_images_m, intrinsics, tips_m, offsets, config=config)
+    classifier = fit_classifier(samples, config=config)
+    n_images = int(np.shape(depth_images_m)[0])
+    return export_forest(
+        classifier, samples, offsets, config=config, extra_settings={"n_images": n_images}
+    )

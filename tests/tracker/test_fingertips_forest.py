@@ -1,0 +1,99 @@
+"""The plain-array forest gives exactly what scikit-learn gives, without pickle."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from builder.fingertip_training import (
+    FingertipTrainingConfig,
+    ForestKind,
+    TrainingSamples,
+    export_forest,
+    fit_classifier,
+)
+from tracker.fingertips.features import pixel_features, random_offsets
+from tracker.fingertips.forest import (
+    apply_depth,
+    apply_features,
+    load_forest,
+    predict_leaves,
+    save_forest,
+)
+
+
+def _samples(rng: np.random.Generator, n: int, n_features: int) -> TrainingSamples:
+    features = rng.normal(size=(n, n_features)).astype(np.float32)
+    # Neighbouring float32 values: a threshold between two of them must not round
+    # onto either when stored as float32.
+    features[:, 0] = (1.0 + np.arange(n) % 7 * np.finfo(np.float32).eps).astype(np.float32)
+    score = features[:, 1] + 0.5 * features[:, 2] - (features[:, 0] > 1.0 + 3e-7)
+    is_tip = score + 0.3 * rng.normal(size=n) > 0.5
+    offset = rng.normal(scale=0.02, size=(n, 3)).astype(np.float32)
+    return TrainingSamples(features, is_tip, offset)
+
+
+@pytest.mark.parametrize("kind", ["extra_trees", "random_forest"])
+def test_npz_forest_equals_scikit_learn(kind: ForestKind, tmp_path: Path) -> None:
+    rng = np.random.default_rng(5)
+    n_features = 12
+    config = FingertipTrainingConfig(
+        forest_kind=kind, n_trees=4, max_depth=10, min_samples_leaf=2, max_features=6
+    )
+    train = _samples(rng, 3000, n_features)
+    classifier = fit_classifier(train, config=config)
+    offsets = random_offsets(n_features, max_offset_m=0.05, seed=0)
+    forest = export_forest(classifier, train, offsets, config=config)
+    save_forest(forest, tmp_path / "forest.npz")
+    loaded = load_forest(tmp_path / "forest.npz")
+
+    test = _samples(rng, 2000, n_features)
+    leaves = apply_features(loaded, test.features)
+    assert leaves.dtype == np.int32 and leaves.shape == (2000, 4)
+    np.testing.assert_array_equal(leaves - loaded.tree_roots, classifier.apply(test.features))
+    prediction = predict_leaves(loaded, leaves)
+    assert prediction.probability.dtype == np.float32
+    np.testing.assert_allclose(
+        prediction.probability, classifier.predict_proba(test.features)[:, 1], atol=1e-6
+    )
+    assert loaded.settings["forest_kind"] == kind
+    assert loaded.version == forest.version != ""
+
+
+def test_leaf_offsets_are_means_of_positive_training_offsets() -> None:
+    rng = np.random.default_rng(6)
+    config = FingertipTrainingConfig(n_trees=2, max_depth=6, max_features=4)
+    train = _samples(rng, 1500, 8)
+    classifier = fit_classifier(train, config=config)
+    forest = export_forest(classifier, train, random_offsets(8, max_offset_m=0.05), config=config)
+    leaves = apply_features(forest, train.features)
+    for t in range(2):
+        leaf = leaves[train.is_tip, t][0]
+        members = train.is_tip & (leaves[:, t] == leaf)
+        np.testing.assert_allclose(
+            forest.node_offset_m[leaf], train.offset_m[members].mean(axis=0), atol=1e-6
+        )
+
+
+def test_depth_inference_equals_feature_matrix_inference() -> None:
+    rng = np.random.default_rng(7)
+    depth = rng.uniform(0.3, 0.6, size=(60, 80)).astype(np.float32)
+    depth[rng.uniform(size=depth.shape) < 0.2] = 0.0
+    intrinsics = (90.0, 95.0, 40.0, 30.0)
+    offsets = random_offsets(30, max_offset_m=0.06, seed=2)
+    pixels = np.argwhere(depth > 0)[:, ::-1].astype(np.int32)
+    features = pixel_features(depth, pixels, offsets, intrinsics)
+    samples = TrainingSamples(
+        features, features[:, 0] > np.median(features[:, 0]), np.zeros((len(pixels), 3), "f4")
+    )
+    config = FingertipTrainingConfig(n_trees=3, max_depth=8, max_features=10)
+    forest = export_forest(fit_classifier(samples, config=config), samples, offsets, config=config)
+    np.testing.assert_array_equal(
+        apply_depth(forest, depth, pixels, intrinsics), apply_features(forest, features)
+    )
+
+
+def test_load_rejects_other_files(tmp_path: Path) -> None:
+    np.savez(tmp_path / "other.npz", a=np.zeros(3))
+    with pytest.raises(ValueError, match="not a glove-fingertip-forest"):
+        load_forest(tmp_path / "other.npz")

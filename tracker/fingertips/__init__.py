@@ -1,0 +1,29 @@
+"""Fingertip detection on depth: Hough forest, 3D voting, assignment to model fingers.
+
+Tzionas et al., "Capturing Hand Motion with an RGB-D Sensor, Fusing a Generative Model
+with Salient Points" (GCPR 2014), Sec. 3.2.5, with Shotton et al.'s depth features.
+"""
+
+from tracker.fingertips.assignment import FINGER_NAMES, Assignment, assign_detections
+from tracker.fingertips.detect import (
+    Detection,
+    detect_fingertips,
+    fingertip_votes,
+    fingertips_output,
+)
+from tracker.fingertips.forest import FingertipForest, load_forest, save_forest
+from tracker.fingertips.voting import VotingConfig
+
+__all__ = [
+    "FINGER_NAMES",
+    "Assignment",
+    "Detection",
+    "FingertipForest",
+    "VotingConfig",
+    "assign_detections",
+    "detect_fingertips",
+    "fingertip_votes",
+    "fingertips_output",
+    "load_forest",
+    "save_forest",
+]

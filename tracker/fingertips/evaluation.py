@@ -1,0 +1,274 @@
+"""Scoring fingertip detections against annotated depth frames.
+
+An annotated folder has the RGB-D layout of CONVENTIONS.md (``intrinsic.json``,
+``depth/000000.png``, optional ``meta.json``) plus a JSON-lines file with one object
+per frame, holding ``frame`` and either
+
+* ``fingertips``: ``{finger name: {"xyz_m": [3], "uv_px": [2]}}`` (a finger may be
+  absent), as in ``shared/data/real_depth/hmodel_andrii``; or
+* ``keypoints_3d_m`` (21 x 3) and ``keypoints_2d_px`` (21 x 2) in MediaPipe order,
+  fingertips at 4, 8, 12, 16, 20, as in ``groundtruth.jsonl`` (a frame with
+  ``hand_visible`` false has no fingertips).
+
+Detections are matched to annotated fingertips one-to-one regardless of finger name
+(the detector does not know fingers before assignment), maximising the number of
+pairs within the distance gate.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import linear_sum_assignment
+
+from tracker.fingertips.assignment import FINGER_NAMES
+from tracker.fingertips.detect import Detection, detect_fingertips
+from tracker.fingertips.forest import FingertipForest
+
+MEDIAPIPE_TIPS = (4, 8, 12, 16, 20)
+"""Indices of the thumb, index, middle, ring and little fingertips among 21 keypoints."""
+
+
+@dataclass(frozen=True)
+class AnnotatedDepth:
+    """Depth frames with fingertip annotations.
+
+    Attributes
+    ----------
+    depth_m : (N, H, W) float32
+        Depth in metres, 0 where missing.
+    intrinsics : (4,) float64
+        ``(fx, fy, cx, cy)`` in pixels.
+    tips_m : (N, 5, 3) float64
+        Fingertips in the camera frame (metres), thumb to little; NaN if not annotated.
+    tips_px : (N, 5, 2) float64
+        Fingertips in the image (pixels); NaN if not annotated.
+    frames : (N,) int64
+        Frame numbers.
+    """
+
+    depth_m: NDArray[np.float32]
+    intrinsics: NDArray[np.float64]
+    tips_m: NDArray[np.float64]
+    tips_px: NDArray[np.float64]
+    frames: NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class FingertipMetrics:
+    """Detection scores, pooled over all frames.
+
+    Attributes
+    ----------
+    frames, detections, annotated_tips : int
+        Counts.
+    precision_15mm, recall_15mm : float
+        Share of detections / annotated tips matched within 15 mm in 3D (NaN if there
+        are none to share).
+    error_3d_mm, error_2d_px : float
+        Mean 3D distance (mm) and 2D distance (px) of the pairs matched within 15 mm.
+    recall_10px : float
+        Share of annotated tips matched within 10 px in the image.
+    ms_per_frame : float
+        Mean detection time per frame in milliseconds (NaN when not measured).
+    """
+
+    frames: int
+    detections: int
+    annotated_tips: int
+    precision_15mm: float
+    recall_15mm: float
+    error_3d_mm: float
+    error_2d_px: float
+    recall_10px: float
+    ms_per_frame: float = math.nan
+
+    def as_dict(self) -> dict[str, float | int]:
+        """The metrics as a JSON-ready dict."""
+        return asdict(self)
+
+
+def _read_intrinsics(folder: Path) -> NDArray[np.float64]:
+    matrix = json.loads((folder / "intrinsic.json").read_text())["intrinsic_matrix"]
+    # Open3D writes the 3x3 matrix column-major: fx at 0, fy at 4, cx at 6, cy at 7.
+    return np.array([matrix[0], matrix[4], matrix[6], matrix[7]], dtype=np.float64)
+
+
+def _tips_of_record(record: dict) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    tips_m = np.full((len(FINGER_NAMES), 3), np.nan)
+    tips_px = np.full((len(FINGER_NAMES), 2), np.nan)
+    if "fingertips" in record:
+        for k, name in enumerate(FINGER_NAMES):
+            tip = record["fingertips"].get(name)
+            if tip is not None:
+                tips_m[k], tips_px[k] = tip["xyz_m"], tip["uv_px"]
+    elif "keypoints_3d_m" in record and record.get("hand_visible", True):
+        tips_m[:] = np.asarray(record["keypoints_3d_m"], dtype=np.float64)[list(MEDIAPIPE_TIPS)]
+        tips_px[:] = np.asarray(record["keypoints_2d_px"], dtype=np.float64)[list(MEDIAPIPE_TIPS)]
+    return tips_m, tips_px
+
+
+def read_annotated_depth(
+    folder: str | os.PathLike[str], *, annotations: str = "annotations.jsonl"
+) -> AnnotatedDepth:
+    """Read the depth frames and fingertip annotations of an annotated RGB-D folder.
+
+    Parameters
+    ----------
+    folder : path
+        The sequence folder.
+    annotations : str
+        Name of the JSON-lines annotation file inside ``folder`` (e.g.
+        ``"groundtruth.jsonl"`` for synthetic sequences).
+
+    Returns
+    -------
+    AnnotatedDepth
+        The annotated frames, in file order.
+
+    Raises
+    ------
+    ValueError
+        If a file is missing or a depth image is not 16-bit.
+    """
+    root = Path(folder)
+    if not (root / annotations).is_file() or not (root / "intrinsic.json").is_file():
+        raise ValueError(f"{root}: expected intrinsic.json and {annotations}")
+    meta_path = root / "meta.json"
+    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+    depth_scale = float(meta.get("depth_scale", 1000.0))
+    records = [json.loads(line) for line in (root / annotations).read_text().splitlines() if line]
+    depth, tips_m, tips_px = [], [], []
+    for record in records:
+        path = root / "depth" / f"{int(record['frame']):06d}.png"
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if image is None or image.dtype != np.uint16:
+            raise ValueError(f"{path}: expected a 16-bit depth PNG")
+        depth.append(image.astype(np.float32) / np.float32(depth_scale))
+        frame_m, frame_px = _tips_of_record(record)
+        tips_m.append(frame_m)
+        tips_px.append(frame_px)
+    return AnnotatedDepth(
+        depth_m=np.stack(depth),
+        intrinsics=_read_intrinsics(root),
+        tips_m=np.stack(tips_m),
+        tips_px=np.stack(tips_px),
+        frames=np.array([int(r["frame"]) for r in records], dtype=np.int64),
+    )
+
+
+def match_within(distance: NDArray[np.float64], gate: float) -> tuple[NDArray, NDArray]:
+    """Largest one-to-one matching with ``distance <= gate``, cheapest among those.
+
+    Parameters
+    ----------
+    distance : (S, T) float
+        Pairwise distances; NaN never matches.
+    gate : float
+
+    Returns
+    -------
+    rows, cols : (K,) intp
+        Matched index pairs.
+    """
+    allowed = np.isfinite(distance) & (distance <= gate)
+    # A penalty above any sum of allowed distances makes the count come first.
+    penalty = 1.0 + gate * (min(distance.shape) + 1)
+    cost = np.where(allowed, np.nan_to_num(distance), penalty)
+    rows, cols = linear_sum_assignment(cost)
+    keep = allowed[rows, cols]
+    return rows[keep], cols[keep]
+
+
+def _safe_ratio(numerator: float, denominator: float) -> float:
+    return numerator / denominator if denominator else math.nan
+
+
+def fingertip_metrics(
+    detections: Sequence[Sequence[Detection]],
+    tips_m: NDArray[np.float64],
+    tips_px: NDArray[np.float64],
+    *,
+    gate_3d_m: float = 0.015,
+    gate_2d_px: float = 10.0,
+) -> FingertipMetrics:
+    """Score per-frame detections against annotated fingertips.
+
+    Parameters
+    ----------
+    detections : sequence of sequences of Detection
+        One sequence per frame.
+    tips_m : (N, 5, 3) float
+        Annotated fingertips, metres; NaN where not annotated.
+    tips_px : (N, 5, 2) float
+        Annotated fingertips, pixels; NaN where not annotated.
+    gate_3d_m, gate_2d_px : float
+        Match gates in 3D (metres) and 2D (pixels).
+
+    Returns
+    -------
+    FingertipMetrics
+    """
+    if not len(detections) == tips_m.shape[0] == tips_px.shape[0]:
+        raise ValueError("detections, tips_m, tips_px: expected one entry per frame each")
+    n_det = n_tip = matched_3d = matched_2d = 0
+    errors_3d: list[float] = []
+    errors_2d: list[float] = []
+    for frame_dets, frame_m, frame_px in zip(detections, tips_m, tips_px, strict=True):
+        annotated = np.all(np.isfinite(frame_m), axis=1)
+        xyz = np.array([[d.x_m, d.y_m, d.z_m] for d in frame_dets]).reshape(-1, 3)
+        uv = np.array([[d.u_px, d.v_px] for d in frame_dets]).reshape(-1, 2)
+        distance_3d = np.linalg.norm(xyz[:, None] - frame_m[None, annotated], axis=2)
+        distance_2d = np.linalg.norm(uv[:, None] - frame_px[None, annotated], axis=2)
+        rows, cols = match_within(distance_3d, gate_3d_m)
+        errors_3d.extend(1000.0 * distance_3d[rows, cols])
+        errors_2d.extend(distance_2d[rows, cols])
+        n_det += len(frame_dets)
+        n_tip += int(annotated.sum())
+        matched_3d += rows.size
+        matched_2d += match_within(distance_2d, gate_2d_px)[0].size
+    return FingertipMetrics(
+        frames=len(detections),
+        detections=n_det,
+        annotated_tips=n_tip,
+        precision_15mm=_safe_ratio(matched_3d, n_det),
+        recall_15mm=_safe_ratio(matched_3d, n_tip),
+        error_3d_mm=float(np.mean(errors_3d)) if errors_3d else math.nan,
+        error_2d_px=float(np.mean(errors_2d)) if errors_2d else math.nan,
+        recall_10px=_safe_ratio(matched_2d, n_tip),
+    )
+
+
+def evaluate_detector(
+    data: AnnotatedDepth,
+    model: FingertipForest,
+    *,
+    c_thr: float = 3.0,
+    stride: int = 2,
+) -> FingertipMetrics:
+    """Run :func:`detect_fingertips` on every frame and score the detections.
+
+    Returns
+    -------
+    FingertipMetrics
+        Including the mean wall-clock detection time per frame.
+    """
+    start = time.perf_counter()
+    detections = [
+        detect_fingertips(depth, data.intrinsics, model, c_thr=c_thr, stride=stride)
+        for depth in data.depth_m
+    ]
+    elapsed_ms = 1000.0 * (time.perf_counter() - start)
+    metrics = fingertip_metrics(detections, data.tips_m, data.tips_px)
+    n_frames = max(len(detections), 1)
+    return dataclasses.replace(metrics, ms_per_frame=elapsed_ms / n_frames)

@@ -1,0 +1,282 @@
+"""The fingertip Hough forest as plain arrays: file format, loading and vectorised inference.
+
+All trees are packed into one node table so that every (pixel, tree) pair descends at
+once, level by level; there is no Python loop over pixels or trees.
+
+File format (``.npz``, read with ``allow_pickle=False``):
+
+======================  ==================  ===============================================
+key                     shape, dtype        meaning
+======================  ==================  ===============================================
+``format``              () str              ``"glove-fingertip-forest"``
+``format_version``      () int64            :data:`FORMAT_VERSION`
+``version``             () str              project version that wrote the file
+``settings_json``       () str              training settings (JSON object)
+``offsets_m``           (F, 2, 2) float32   feature probe offsets in metres
+``depth_range_m``       (2,) float32        working depth range (near, far) in metres
+``tree_roots``          (T,) int32          node index of each tree's root; tree ``t`` owns
+                                            nodes ``tree_roots[t]:tree_roots[t + 1]``
+``node_feature``        (n,) int32          feature index tested at a split, -1 at a leaf
+``node_threshold``      (n,) float32        go left when feature value <= threshold
+``node_left``           (n,) int32          left child (global node index), -1 at a leaf
+``node_right``          (n,) int32          right child (global node index), -1 at a leaf
+``node_probability``    (n,) float32        fingertip probability of the training pixels
+                                            reaching the node
+``node_offset_m``       (n, 3) float32      mean 3D offset (camera axes, metres) from the
+                                            pixel to its nearest fingertip, over the
+                                            positive training pixels reaching the node
+                                            (0 where there are none)
+======================  ==================  ===============================================
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from glovedb._validate import as_array
+from tracker.fingertips.features import (
+    intrinsics_array,
+    paired_feature_values,
+    probe_image,
+    read_probes,
+)
+
+FORMAT_NAME = "glove-fingertip-forest"
+FORMAT_VERSION = 1
+
+FeatureLookup = Callable[[NDArray[np.intp], NDArray[np.int32]], NDArray[np.float32]]
+"""``(rows, feature_index) -> values``: feature ``feature_index[k]`` of row ``rows[k]``."""
+
+
+@dataclass(frozen=True)
+class FingertipForest:
+    """A trained fingertip forest; see the module docstring for the meaning of each array."""
+
+    offsets_m: NDArray[np.float32]
+    depth_range_m: tuple[float, float]
+    tree_roots: NDArray[np.int32]
+    node_feature: NDArray[np.int32]
+    node_threshold: NDArray[np.float32]
+    node_left: NDArray[np.int32]
+    node_right: NDArray[np.int32]
+    node_probability: NDArray[np.float32]
+    node_offset_m: NDArray[np.float32]
+    settings_json: str = "{}"
+    version: str = ""
+
+    def __post_init__(self) -> None:
+        _check_forest(self)
+
+    @property
+    def n_trees(self) -> int:
+        """Number of trees ``T``."""
+        return int(self.tree_roots.size)
+
+    @property
+    def n_features(self) -> int:
+        """Number of features ``F`` the split tests index into."""
+        return int(self.offsets_m.shape[0])
+
+    @property
+    def settings(self) -> dict[str, Any]:
+        """The training settings recorded with the forest."""
+        loaded: dict[str, Any] = json.loads(self.settings_json)
+        return loaded
+
+
+@dataclass(frozen=True)
+class ForestPrediction:
+    """Per-pixel output of the forest.
+
+    Attributes
+    ----------
+    probability : (N,) float32
+        Fingertip probability, mean over the trees.
+    offset_m : (N, 3) float32
+        Vote offset in metres from the pixel's 3D point to the fingertip: the mean of
+        the trees' leaf offsets weighted by their leaf probabilities.
+    """
+
+    probability: NDArray[np.float32]
+    offset_m: NDArray[np.float32]
+
+
+def _check_forest(forest: FingertipForest) -> None:
+    n = forest.node_feature.shape[0]
+    for name in ("node_threshold", "node_left", "node_right", "node_probability"):
+        as_array(name, getattr(forest, name), (n,))
+    as_array("node_offset_m", forest.node_offset_m, (n, 3))
+    as_array("offsets_m", forest.offsets_m, (None, 2, 2))
+    roots = as_array("tree_roots", forest.tree_roots, (None,))
+    if roots.size == 0 or np.any(roots < 0) or np.any(roots >= n):
+        raise ValueError("tree_roots: expected at least one root, each a valid node index")
+    split = forest.node_feature >= 0
+    index = np.arange(n)
+    for name in ("node_left", "node_right"):
+        child = getattr(forest, name)[split]
+        # Children after their parent rule out cycles, so every descent ends at a leaf.
+        if np.any(child <= index[split]) or np.any(child >= n):
+            raise ValueError(f"{name}: each split's child must be a later node index")
+    if np.any(forest.node_feature >= forest.offsets_m.shape[0]):
+        raise ValueError("node_feature: index beyond the number of feature offsets")
+
+
+def save_forest(forest: FingertipForest, path: str | os.PathLike[str]) -> None:
+    """Write ``forest`` to an ``.npz`` file in the format of the module docstring."""
+    np.savez_compressed(
+        path,
+        format=np.array(FORMAT_NAME),
+        format_version=np.array(FORMAT_VERSION, dtype=np.int64),
+        version=np.array(forest.version),
+        settings_json=np.array(forest.settings_json),
+        offsets_m=forest.offsets_m.astype(np.float32),
+        depth_range_m=np.asarray(forest.depth_range_m, dtype=np.float32),
+        tree_roots=forest.tree_roots.astype(np.int32),
+        node_feature=forest.node_feature.astype(np.int32),
+        node_threshold=forest.node_threshold.astype(np.float32),
+        node_left=forest.node_left.astype(np.int32),
+        node_right=forest.node_right.astype(np.int32),
+        node_probability=forest.node_probability.astype(np.float32),
+        node_offset_m=forest.node_offset_m.astype(np.float32),
+    )
+
+
+def load_forest(path: str | os.PathLike[str]) -> FingertipForest:
+    """Read a forest written by :func:`save_forest`; never unpickles anything.
+
+    Raises
+    ------
+    ValueError
+        If the file is not a fingertip forest of a supported format version.
+    """
+    with np.load(path, allow_pickle=False) as data:
+        if "format" not in data or str(data["format"]) != FORMAT_NAME:
+            raise ValueError(f"{os.fspath(path)}: not a {FORMAT_NAME} file")
+        if int(data["format_version"]) != FORMAT_VERSION:
+            raise ValueError(
+                f"{os.fspath(path)}: format version {int(data['format_version'])}, "
+                f"this code reads {FORMAT_VERSION}"
+            )
+        near, far = (float(x) for x in data["depth_range_m"])
+        return FingertipForest(
+            offsets_m=data["offsets_m"].astype(np.float32),
+            depth_range_m=(near, far),
+            tree_roots=data["tree_roots"].astype(np.int32),
+            node_feature=data["node_feature"].astype(np.int32),
+            node_threshold=data["node_threshold"].astype(np.float32),
+            node_left=data["node_left"].astype(np.int32),
+            node_right=data["node_right"].astype(np.int32),
+            node_probability=data["node_probability"].astype(np.float32),
+            node_offset_m=data["node_offset_m"].astype(np.float32),
+            settings_json=str(data["settings_json"]),
+            version=str(data["version"]),
+        )
+
+
+def descend(forest: FingertipForest, n_rows: int, lookup: FeatureLookup) -> NDArray[np.int32]:
+    """Drop ``n_rows`` samples down every tree; features come from ``lookup`` on demand.
+
+    Only the (sample, tree) pairs still at a split node are processed at each level.
+
+    Returns
+    -------
+    leaves : (n_rows, T) int32
+        Global index of the leaf each sample reaches in each tree.
+    """
+    n_trees = forest.n_trees
+    children = np.stack([forest.node_left, forest.node_right], axis=1)
+    leaves = np.tile(forest.tree_roots, n_rows)
+    # The state of the (sample, tree) pairs still at a split, compacted every level.
+    pair = np.flatnonzero(forest.node_feature[leaves] >= 0)
+    node = leaves[pair]
+    row = pair // n_trees
+    feature = forest.node_feature[node]
+    while pair.size:
+        go_right = lookup(row, feature) > forest.node_threshold[node]
+        node = children[node, go_right.astype(np.intp)]
+        feature = forest.node_feature[node]
+        done = feature < 0
+        leaves[pair[done]] = node[done]
+        going = ~done
+        pair, node, row, feature = pair[going], node[going], row[going], feature[going]
+    return leaves.reshape(n_rows, n_trees).astype(np.int32)
+
+
+def apply_features(forest: FingertipForest, features: ArrayLike) -> NDArray[np.int32]:
+    """Leaves reached by samples whose feature vectors are given.
+
+    Parameters
+    ----------
+    forest : FingertipForest
+    features : (N, F) float32
+        Feature values, as from :func:`tracker.fingertips.features.pixel_features`.
+
+    Returns
+    -------
+    leaves : (N, T) int32
+        Global node index per tree; subtract ``forest.tree_roots`` for the index within
+        each tree (what scikit-learn's ``apply`` returns).
+    """
+    values = as_array("features", features, (None, forest.n_features), np.float32, kind="fiu")
+    return descend(forest, values.shape[0], lambda rows, feature: values[rows, feature])
+
+
+def apply_depth(
+    forest: FingertipForest,
+    depth_m: ArrayLike,
+    pixels_uv: ArrayLike,
+    intrinsics: ArrayLike,
+) -> NDArray[np.int32]:
+    """Leaves reached by pixels of a depth image, computing only the features tested.
+
+    Parameters
+    ----------
+    forest : FingertipForest
+    depth_m : (H, W) float32
+        Depth in metres, 0 where missing, already restricted to the working range.
+    pixels_uv : (N, 2) int32
+        Pixels ``(u, v)`` with a depth measurement.
+    intrinsics : (4,) float
+        ``(fx, fy, cx, cy)`` in pixels.
+
+    Returns
+    -------
+    leaves : (N, T) int32
+    """
+    depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
+    pixels = as_array("pixels_uv", pixels_uv, (None, 2), np.int32, kind="iu")
+    fx, fy, _, _ = intrinsics_array(intrinsics)
+    padded = probe_image(depth)
+    reference = read_probes(padded, pixels[:, 0], pixels[:, 1])
+
+    def lookup(rows: NDArray[np.intp], feature: NDArray[np.int32]) -> NDArray[np.float32]:
+        return paired_feature_values(
+            padded, pixels[rows], reference[rows], forest.offsets_m[feature], (fx, fy)
+        )
+
+    return descend(forest, pixels.shape[0], lookup)
+
+
+def predict_leaves(forest: FingertipForest, leaves: ArrayLike) -> ForestPrediction:
+    """Combine the leaves ``(N, T)`` reached in each tree into one prediction per sample."""
+    nodes = as_array("leaves", leaves, (None, forest.n_trees), np.intp, kind="iu")
+    probability = forest.node_probability[nodes]
+    weight_sum = probability.sum(axis=1)
+    weighted = np.einsum("nt,ntk->nk", probability, forest.node_offset_m[nodes])
+    offset = np.divide(
+        weighted,
+        weight_sum[:, None],
+        out=np.zeros_like(weighted),
+        where=weight_sum[:, None] > 0,
+    )
+    return ForestPrediction(
+        probability=(weight_sum / forest.n_trees).astype(np.float32),
+        offset_m=offset.astype(np.float32),
+    )
