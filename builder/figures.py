@@ -72,7 +72,7 @@ def grid(images: Sequence[NDArray[np.uint8]], columns: int) -> NDArray[np.uint8]
     return np.vstack(rows)
 
 
-def pattern_sheet(renderer: GloveRenderer, *, distance_m: float = 0.45) -> NDArray[np.uint8]:
+def pattern_sheet(renderer: GloveRenderer, *, distance_m: float = 0.32) -> NDArray[np.uint8]:
     """The glove pattern to paint a real glove: back and palm of the open hand, and a
     legend of the ten colors with the two patches each one covers."""
     hand_length = renderer.mesh.skeleton.hand_length_m

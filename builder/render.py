@@ -60,6 +60,7 @@ class _OffscreenRenderer(pyrender.OffscreenRenderer):
     """An offscreen renderer that uses :class:`_SingleSampleRenderer`."""
 
     _renderer: pyrender.Renderer
+    _platform: Any
 
     def _create(self) -> None:
         super()._create()
