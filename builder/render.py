@@ -19,6 +19,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 from dataclasses import dataclass
 from types import TracebackType
+from typing import Any
 
 import numpy as np
 import pyrender
