@@ -5,10 +5,10 @@ pyrender renders through a 4x multisampled framebuffer, which blends class label
 edges; :class:`_SingleSampleRenderer` gives its framebuffer one sample so that every
 label pixel is exactly one class and rendering is deterministic.
 
-Frames: the hand is posed in the OpenCV camera frame (``p_cam = R @ p_hand + t``);
-the pyrender camera sits at the origin with the OpenGL axes (x right, y up, looking
-down -z), which is the one place where the two conventions meet
-(:data:`_CV_T_GL`).
+Frames: the scene holds the posed hand in its own frame and the camera is placed at
+``hand_T_cam`` for the global pose ``p_cam = R @ p_hand + t``; the camera's OpenGL
+axes (x right, y up, looking down -z) are the OpenCV axes turned by
+:data:`_CV_T_GL`, the one place where the two conventions meet.
 """
 
 from __future__ import annotations
@@ -34,6 +34,22 @@ from glovedb.pattern import GlovePattern, face_labels, load_pattern
 
 # OpenGL camera axes expressed in the OpenCV camera frame.
 _CV_T_GL = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def _camera_pose(rotation: ArrayLike, translation_m: ArrayLike) -> NDArray[np.float64]:
+    """pyrender camera pose in the hand frame for the global pose ``cam_T_hand``.
+
+    The scene holds the hand in its own frame; the camera sits at ``hand_T_cam`` and
+    its OpenGL axes are the OpenCV axes turned by :data:`_CV_T_GL`.
+    """
+    cam_R_hand = as_array("rotation", rotation, (3, 3), np.float64, finite=True)
+    translation = as_array("translation_m", translation_m, (3,), np.float64, finite=True)
+    hand_T_cam = np.eye(4)
+    hand_T_cam[:3, :3] = cam_R_hand.T
+    hand_T_cam[:3, 3] = -cam_R_hand.T @ translation
+    return hand_T_cam @ _CV_T_GL
+
+
 _Z_NEAR_M, _Z_FAR_M = 0.05, 10.0
 
 
@@ -175,10 +191,13 @@ class GloveRenderer:
             znear=_Z_NEAR_M,
             zfar=_Z_FAR_M,
         )
-        for scene in (self._color_scene, self._label_scene):
-            scene.add(gl_camera, pose=_CV_T_GL)
+        self._camera_nodes = {
+            "color": self._color_scene.add(gl_camera, pose=_CV_T_GL),
+            "label": self._label_scene.add(gl_camera, pose=_CV_T_GL),
+        }
+        # The light travels with the camera, so it hangs below the camera node.
         key_light = pyrender.DirectionalLight(color=np.ones(3), intensity=1.6)
-        self._color_scene.add(key_light, pose=_CV_T_GL)
+        self._color_scene.add(key_light, parent_node=self._camera_nodes["color"])
         self._material = pyrender.MetallicRoughnessMaterial(
             baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0, roughnessFactor=0.9
         )
@@ -202,18 +221,54 @@ class GloveRenderer:
         -------
         Rendering
         """
-        positions, normals = self._posed_vertices(posture_rad, rotation, translation_m)
-        self._set_mesh("color", positions, normals, self._shade_colors)
+        hand_vertices = self._posed_hand(posture_rad)
+        pose = _camera_pose(rotation, translation_m)
+        normals = vertex_normals(hand_vertices, self.mesh.faces)[self._source_vertex]
+        self._set_mesh("color", hand_vertices[self._source_vertex], normals, self._shade_colors)
+        self._color_scene.set_pose(self._camera_nodes["color"], pose)
         color, _ = self._live_renderer().render(self._color_scene)
-        labels, depth = self._render_labels(positions, normals)
-        return Rendering(labels, depth, np.ascontiguousarray(color[..., :3]))
+        self._set_mesh("label", hand_vertices[self._source_vertex], None, self._label_colors)
+        labels = self._render_label_view(pose)
+        return Rendering(labels.labels, labels.depth_m, np.ascontiguousarray(color[..., :3]))
 
     def render_labels(
         self, posture_rad: ArrayLike, rotation: ArrayLike, translation_m: ArrayLike
     ) -> LabelRendering:
         """Labels and depth only (faster). Arguments as :meth:`render`."""
-        positions, normals = self._posed_vertices(posture_rad, rotation, translation_m)
-        return LabelRendering(*self._render_labels(positions, normals))
+        return self.render_label_views(
+            posture_rad, np.asarray(rotation)[None], np.asarray(translation_m)[None]
+        )[0]
+
+    def render_label_views(
+        self, posture_rad: ArrayLike, rotations: ArrayLike, translations_m: ArrayLike
+    ) -> list[LabelRendering]:
+        """Labels and depth of one posture seen in many global poses.
+
+        The mesh is posed and uploaded once; only the camera moves, which makes this
+        much faster than one :meth:`render_labels` call per view.
+
+        Parameters
+        ----------
+        posture_rad : (20,) float
+        rotations : (V, 3, 3) float
+            ``cam_R_hand`` of every view.
+        translations_m : (V, 3) float
+
+        Returns
+        -------
+        list of LabelRendering
+            One per view, in order.
+        """
+        rotations = as_array("rotations", rotations, (None, 3, 3), np.float64, finite=True)
+        translations = as_array(
+            "translations_m", translations_m, (len(rotations), 3), np.float64, finite=True
+        )
+        hand_vertices = self._posed_hand(posture_rad)
+        self._set_mesh("label", hand_vertices[self._source_vertex], None, self._label_colors)
+        return [
+            self._render_label_view(_camera_pose(rotation, translation))
+            for rotation, translation in zip(rotations, translations, strict=True)
+        ]
 
     def close(self) -> None:
         """Release the OpenGL context; closing twice is harmless."""
@@ -237,30 +292,21 @@ class GloveRenderer:
             raise ValueError("the renderer is closed")
         return self._renderer
 
-    def _posed_vertices(
-        self, posture_rad: ArrayLike, rotation: ArrayLike, translation_m: ArrayLike
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def _posed_hand(self, posture_rad: ArrayLike) -> NDArray[np.float64]:
         posture = as_array("posture_rad", posture_rad, (N_JOINTS,), np.float64, finite=True)
-        cam_R_hand = as_array("rotation", rotation, (3, 3), np.float64, finite=True)
-        translation = as_array("translation_m", translation_m, (3,), np.float64, finite=True)
-        hand_vertices = pose_mesh(self.mesh, posture)
-        camera_vertices = hand_vertices @ cam_R_hand.T + translation
-        normals = vertex_normals(camera_vertices, self.mesh.faces)
-        return camera_vertices[self._source_vertex], normals[self._source_vertex]
+        return pose_mesh(self.mesh, posture)
 
-    def _render_labels(
-        self, positions: NDArray[np.float64], normals: NDArray[np.float64]
-    ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
-        self._set_mesh("label", positions, normals, self._label_colors)
+    def _render_label_view(self, camera_pose: NDArray[np.float64]) -> LabelRendering:
+        self._label_scene.set_pose(self._camera_nodes["label"], camera_pose)
         flags = pyrender.RenderFlags.FLAT
         labels, depth = self._live_renderer().render(self._label_scene, flags=flags)
-        return np.ascontiguousarray(labels[..., 0]), depth.astype(np.float32)
+        return LabelRendering(np.ascontiguousarray(labels[..., 0]), depth.astype(np.float32))
 
     def _set_mesh(
         self,
         which: str,
         positions: NDArray[np.float64],
-        normals: NDArray[np.float64],
+        normals: NDArray[np.float64] | None,
         colors: NDArray[np.float64],
     ) -> None:
         scene = self._color_scene if which == "color" else self._label_scene
@@ -268,7 +314,7 @@ class GloveRenderer:
             scene.remove_node(self._nodes[which])
         primitive = pyrender.Primitive(
             positions=positions.astype(np.float32),
-            normals=normals.astype(np.float32),
+            normals=None if normals is None else normals.astype(np.float32),
             color_0=colors.astype(np.float32),
             indices=self._faces,
             material=self._material,

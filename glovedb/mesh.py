@@ -253,8 +253,10 @@ def vertex_normals(vertices: ArrayLike, faces: ArrayLike) -> NDArray[np.float64]
     v = as_array("vertices", vertices, (None, 3), np.float64)
     f = as_array("faces", faces, (None, 3), kind="iu")
     face_normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    normals = np.zeros_like(v)
-    for corner in range(3):
-        np.add.at(normals, f[:, corner], face_normals)
+    corners = f.ravel()
+    repeated = np.repeat(face_normals, 3, axis=0)
+    normals = np.stack(
+        [np.bincount(corners, repeated[:, axis], minlength=len(v)) for axis in range(3)], -1
+    )
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     return normals / np.maximum(length, 1e-12)

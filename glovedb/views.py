@@ -88,3 +88,90 @@ def named_view(
     check_choice("view", name, tuple(NAMED_VIEWS))
     target = np.array(HAND_CENTRE) * hand_length_m
     return pose_for_view(NAMED_VIEWS[name], distance_m, target_m=target)
+
+
+def icosphere(subdivisions: int) -> NDArray[np.float64]:
+    """Vertices of a subdivided icosahedron on the unit sphere.
+
+    Every subdivision splits each triangle into four; the vertex count is
+    ``10 * 4**subdivisions + 2`` (12, 42, 162, 642, ...).
+
+    Parameters
+    ----------
+    subdivisions : int
+        0 to 6.
+
+    Returns
+    -------
+    (V, 3) float64
+        Unit vectors, in a fixed deterministic order.
+    """
+    if not 0 <= subdivisions <= 6:
+        raise ValueError(f"subdivisions: expected 0-6, got {subdivisions}")
+    golden = (1.0 + np.sqrt(5.0)) / 2.0
+    vertices = [
+        (-1, golden, 0), (1, golden, 0), (-1, -golden, 0), (1, -golden, 0),
+        (0, -1, golden), (0, 1, golden), (0, -1, -golden), (0, 1, -golden),
+        (golden, 0, -1), (golden, 0, 1), (-golden, 0, -1), (-golden, 0, 1),
+    ]  # fmt: skip
+    faces = [
+        (0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11),
+        (1, 5, 9), (5, 11, 4), (11, 10, 2), (10, 7, 6), (7, 1, 8),
+        (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9),
+        (4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1),
+    ]  # fmt: skip
+    points = [np.array(v, dtype=np.float64) / np.linalg.norm(v) for v in vertices]
+    for _ in range(subdivisions):
+        midpoints: dict[tuple[int, int], int] = {}
+        refined = []
+        for a, b, c in faces:
+            middle = []
+            for first, second in ((a, b), (b, c), (c, a)):
+                key = (min(first, second), max(first, second))
+                if key not in midpoints:
+                    point = points[first] + points[second]
+                    points.append(point / np.linalg.norm(point))
+                    midpoints[key] = len(points) - 1
+                middle.append(midpoints[key])
+            ab, bc, ca = middle
+            refined += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+        faces = refined
+    return np.array(points)
+
+
+def database_views(
+    subdivisions: int = 1, rolls: int = 18, *, distance_m: float = 0.5, hand_length_m: float = 0.19
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The views of a posture database: icosphere camera positions times rolls.
+
+    Parameters
+    ----------
+    subdivisions : int
+        Of the icosahedron (1 gives 42 camera positions).
+    rolls : int
+        Rotations about the optical axis per position, evenly spaced over 360 degrees.
+    distance_m, hand_length_m : float
+        Camera distance from the middle of the hand, and the hand's size.
+
+    Returns
+    -------
+    rotations : (P * R, 3, 3) float64
+        ``cam_R_hand`` of every view, position-major (view ``p * R + r``).
+    translations_m : (P * R, 3) float64
+        The wrist in the camera frame.
+    roll_rad : (R,) float64
+        The roll angles.
+    """
+    if rolls < 1:
+        raise ValueError(f"rolls: expected at least 1, got {rolls}")
+    roll_rad = np.arange(rolls) * (2 * np.pi / rolls)
+    target = np.array(HAND_CENTRE) * hand_length_m
+    rotations, translations = [], []
+    for direction in icosphere(subdivisions):
+        for roll in roll_rad:
+            rotation, translation = pose_for_view(
+                direction, distance_m, target_m=target, roll_rad=roll
+            )
+            rotations.append(rotation)
+            translations.append(translation)
+    return np.array(rotations), np.array(translations), roll_rad

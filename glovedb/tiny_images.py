@@ -1,0 +1,141 @@
+"""Tiny images: the glove's class labels cropped, normalised and shrunk to s x s pixels.
+
+The builder and the tracker make tiny images with this one function, so a database
+entry and a camera frame are compared like with like (thesis 4.2.2).
+
+Normalisation: the glove pixels' bounding box is grown to a square about its centre
+(aspect preserved), then divided into s x s cells. Every cell takes the class that
+covers most of it, background included (ties go to the glove class with the lowest
+label), so labels stay exact: classes are never blended. The counts of the largest
+size are summed 2 x 2 to give the next smaller size, so every size is an exact
+majority over the same crop.
+
+Rotations about the optical axis: rotating a camera about its optical axis rotates
+its image about the principal point (``K Rz K^-1`` is a rotation of the image when
+``fx == fy``), and the crop is recomputed after rotating, so one rendering gives the
+tiny images of every roll angle by rotating the glove pixels' coordinates.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from glovedb._validate import as_array
+
+N_LABELS = 11  # background and 10 glove classes
+DEFAULT_SIZES: tuple[int, ...] = (8, 16, 32, 64)
+
+
+def check_sizes(sizes: Sequence[int]) -> tuple[int, ...]:
+    """Sorted sizes, each a power of two from 4 to 256; ``ValueError`` otherwise."""
+    result = tuple(sorted(int(s) for s in sizes))
+    if not result or any(s < 4 or s > 256 or s & (s - 1) for s in result):
+        raise ValueError(f"tiny image sizes must be powers of two in 4..256, got {list(sizes)}")
+    if len(set(result)) != len(result):
+        raise ValueError(f"tiny image sizes repeat: {list(sizes)}")
+    return result
+
+
+def tiny_images_from_pixels(
+    pixels_uv: ArrayLike,
+    labels: ArrayLike,
+    sizes: Sequence[int] = DEFAULT_SIZES,
+    *,
+    rolls_rad: ArrayLike = (0.0,),
+) -> dict[int, NDArray[np.uint8]]:
+    """Tiny images of a set of labelled glove pixels, for one or many image rotations.
+
+    Parameters
+    ----------
+    pixels_uv : (N, 2) float
+        Pixel centres (column, row) of the glove pixels; every pixel covers a unit
+        square around its centre.
+    labels : (N,) uint8
+        Their glove classes 1..10.
+    sizes : sequence of int
+        Powers of two; every one must divide the largest.
+    rolls_rad : (R,) float
+        Make the images a camera would see if it were rotated by each of these angles
+        about its optical axis (+z), as ``roll_rad`` of :func:`glovedb.views.pose_for_view`.
+
+    Returns
+    -------
+    dict of int to (R, s, s) uint8
+        For every size, one tiny image per roll. With no glove pixels every image is
+        background (all zeros).
+    """
+    sizes = check_sizes(sizes)
+    uv = as_array("pixels_uv", pixels_uv, (None, 2), np.float64, finite=True)
+    classes = as_array("labels", labels, (len(uv),), kind="iu").astype(np.int64)
+    rolls = as_array("rolls_rad", rolls_rad, (None,), np.float64, finite=True)
+    if len(classes) and (classes.min() < 1 or classes.max() >= N_LABELS):
+        raise ValueError("labels: glove pixels must have classes 1..10")
+    largest = sizes[-1]
+    if len(uv) == 0:
+        return {s: np.zeros((len(rolls), s, s), np.uint8) for s in sizes}
+
+    # Rotate about the centroid: the crop is recomputed, so the centre does not matter.
+    centred = uv - uv.mean(axis=0)
+    cos, sin = np.cos(rolls), np.sin(rolls)
+    # A camera turned by phi about +z sees x' = x cos - y sin, y' = x sin + y cos, and
+    # with fx == fy its pixels move the same way about the principal point.
+    u = centred[:, 0] * cos[:, None] - centred[:, 1] * sin[:, None]
+    v = centred[:, 0] * sin[:, None] + centred[:, 1] * cos[:, None]
+    low_u, high_u = u.min(axis=1) - 0.5, u.max(axis=1) + 0.5
+    low_v, high_v = v.min(axis=1) - 0.5, v.max(axis=1) + 0.5
+    side = np.maximum(high_u - low_u, high_v - low_v)
+    origin_u = (low_u + high_u - side) / 2
+    origin_v = (low_v + high_v - side) / 2
+    scale = largest / side
+    col = np.clip(((u - origin_u[:, None]) * scale[:, None]).astype(np.int64), 0, largest - 1)
+    row = np.clip(((v - origin_v[:, None]) * scale[:, None]).astype(np.int64), 0, largest - 1)
+    roll_index = np.arange(len(rolls))[:, None]
+    bins = ((roll_index * largest + row) * largest + col) * N_LABELS + classes[None, :]
+    counts = np.bincount(bins.ravel(), minlength=len(rolls) * largest * largest * N_LABELS)
+    counts = counts.reshape(len(rolls), largest, largest, N_LABELS).astype(np.float64)
+    # Background covers whatever part of a cell the glove pixels do not.
+    cell_area = (1.0 / scale)[:, None, None] ** 2
+    counts[..., 0] = np.maximum(cell_area - counts[..., 1:].sum(axis=-1), 0.0)
+
+    images = {}
+    for size in reversed(sizes):
+        while counts.shape[1] > size:
+            half = counts.shape[1] // 2
+            counts = counts.reshape(len(rolls), half, 2, half, 2, N_LABELS).sum(axis=(2, 4))
+        images[size] = _majority(counts)
+    return {s: images[s] for s in sizes}
+
+
+def _majority(counts: NDArray[np.float64]) -> NDArray[np.uint8]:
+    """Class with the largest count along the last axis; a tie goes to the glove."""
+    glove = counts[..., 1:]
+    best_glove = np.argmax(glove, axis=-1)
+    best_count = np.take_along_axis(glove, best_glove[..., None], axis=-1)[..., 0]
+    winner = np.where(best_count >= counts[..., 0], best_glove + 1, 0)
+    return winner.astype(np.uint8)
+
+
+def tiny_images(
+    label_image: ArrayLike, sizes: Sequence[int] = DEFAULT_SIZES
+) -> dict[int, NDArray[np.uint8]]:
+    """Tiny images of one class-label image.
+
+    Parameters
+    ----------
+    label_image : (H, W) uint8
+        0 background, 1..10 glove classes.
+    sizes : sequence of int
+
+    Returns
+    -------
+    dict of int to (s, s) uint8
+        All zeros when the image has no glove pixels.
+    """
+    image = as_array("label_image", label_image, (None, None), kind="iu")
+    rows, cols = np.nonzero(image)
+    pixels = np.stack([cols, rows], axis=1).astype(np.float64)
+    stacked = tiny_images_from_pixels(pixels, image[rows, cols], sizes)
+    return {size: stack[0] for size, stack in stacked.items()}
