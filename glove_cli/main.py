@@ -12,10 +12,10 @@ import sys
 import traceback
 from collections.abc import Sequence
 
-from glove_cli.commands import demo, pattern, render
+from glove_cli.commands import build, db, demo, pattern, render
 from glovedb import __version__
 
-COMMANDS = (demo, render, pattern)
+COMMANDS = (demo, render, pattern, build, db)
 # Errors that mean "the input or the request is wrong", not "the program is wrong".
 USER_ERRORS = (ValueError, TypeError, FileNotFoundError, IsADirectoryError, PermissionError)
 

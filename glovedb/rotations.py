@@ -70,20 +70,46 @@ def matrix_to_quaternion(rotation: ArrayLike) -> NDArray[np.float64]:
     trace = np.trace(m, axis1=1, axis2=2)
     candidates = np.stack(
         [
-            np.stack([1 + trace, m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0],
-                      m[:, 1, 0] - m[:, 0, 1]], -1),
-            np.stack([m[:, 2, 1] - m[:, 1, 2], 1 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2],
-                      m[:, 0, 1] + m[:, 1, 0], m[:, 0, 2] + m[:, 2, 0]], -1),
-            np.stack([m[:, 0, 2] - m[:, 2, 0], m[:, 0, 1] + m[:, 1, 0],
-                      1 - m[:, 0, 0] + m[:, 1, 1] - m[:, 2, 2], m[:, 1, 2] + m[:, 2, 1]], -1),
-            np.stack([m[:, 1, 0] - m[:, 0, 1], m[:, 0, 2] + m[:, 2, 0],
-                      m[:, 1, 2] + m[:, 2, 1], 1 - m[:, 0, 0] - m[:, 1, 1] + m[:, 2, 2]], -1),
+            np.stack(
+                [
+                    1 + trace,
+                    m[:, 2, 1] - m[:, 1, 2],
+                    m[:, 0, 2] - m[:, 2, 0],
+                    m[:, 1, 0] - m[:, 0, 1],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[:, 2, 1] - m[:, 1, 2],
+                    1 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2],
+                    m[:, 0, 1] + m[:, 1, 0],
+                    m[:, 0, 2] + m[:, 2, 0],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[:, 0, 2] - m[:, 2, 0],
+                    m[:, 0, 1] + m[:, 1, 0],
+                    1 - m[:, 0, 0] + m[:, 1, 1] - m[:, 2, 2],
+                    m[:, 1, 2] + m[:, 2, 1],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[:, 1, 0] - m[:, 0, 1],
+                    m[:, 0, 2] + m[:, 2, 0],
+                    m[:, 1, 2] + m[:, 2, 1],
+                    1 - m[:, 0, 0] - m[:, 1, 1] + m[:, 2, 2],
+                ],
+                -1,
+            ),
         ],
         1,
     )
-    pivots = np.stack(
-        [trace, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], -1
-    ).argmax(-1)
+    pivots = np.stack([trace, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], -1).argmax(-1)
     q = candidates[np.arange(len(m)), pivots]
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
     q *= np.where(q[:, :1] < 0, -1.0, 1.0)
@@ -178,3 +204,33 @@ def look_at(eye: ArrayLike, target: ArrayLike, up: ArrayLike) -> NDArray[np.floa
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return np.stack([x, y, z])
+
+
+def weighted_rotation_average(rotations: ArrayLike, weights: ArrayLike) -> NDArray[np.float64]:
+    """Weighted mean rotation: principal eigenvector of ``sum_j w_j q_j q_j^T``.
+
+    The quaternion outer products make the result independent of each quaternion's
+    sign (``q`` and ``-q`` are the same rotation). It is the chordal L2 mean in
+    quaternion space (Markley et al. 2007); for two rotations with equal weights it is
+    exactly their geodesic midpoint.
+
+    Parameters
+    ----------
+    rotations : (k, 3, 3) float
+        Rotation matrices.
+    weights : (k,) float
+        Non-negative weights with a positive sum (normalisation is not needed).
+
+    Returns
+    -------
+    (3, 3) float64
+        The average rotation.
+    """
+    R = as_array("rotations", rotations, (None, 3, 3), np.float64, finite=True)
+    w = as_array("weights", weights, (len(R),), np.float64, finite=True)
+    if np.any(w < 0) or not np.sum(w) > 0:
+        raise ValueError("weights: must be non-negative with a positive sum")
+    q = matrix_to_quaternion(R)
+    scatter = np.einsum("k,ki,kj->ij", w, q, q)
+    _, vectors = np.linalg.eigh(scatter)
+    return quaternion_to_matrix(vectors[:, -1])

@@ -1,0 +1,494 @@
+"""Cascaded k-nearest-neighbour lookup of a query's tiny images in a posture database.
+
+The cascade (Schröder 2015, Sec. 4.2.2, Fig. 4.5) is written ``"8:2000,16:300,64:3"``:
+scan every entry at 8x8 and keep the 2000 nearest, re-rank those at 16x16 and keep
+300, re-rank those at 64x64 and keep 3. :func:`interpolate_pose` then blends the
+postures and rotations of the survivors, weighted by their matching errors.
+
+Which distance
+    Every stage ranks entries ``D`` by the directed distance ``m(D, Q)`` of Eq. 4.2
+    (:mod:`glovedb.chamfer`): the mean distance from each glove pixel of the database
+    image to the nearest query pixel of the same colour. It needs the chamfer maps of
+    the query only, computed once per stage (well under a millisecond for 8..16
+    pixels, about two at 64), while a database entry costs only lookups of its glove
+    pixels in those maps and nothing is stored per entry but its labels. ``m(Q, D)``
+    (or the symmetric mean) would need the maps of every database image: ten values
+    per pixel, 2.6 GB at 1,000,000 entries of 16x16 even as bytes, or an exact
+    transform per candidate per query. Known weakness of the directed form: an entry
+    whose glove pixels all lie on same-coloured query pixels scores 0 even if it shows
+    only part of the hand. Tiny images are normalised to the hand's bounding box,
+    which keeps such subsets rare.
+
+Resident layout
+    :func:`pack_tiny_images` stores each image as ``s * s / g`` uint16 codes, one per
+    group of ``g`` consecutive pixels (``code = sum label_i * 11 ** (g - 1 - i)``), and
+    its glove pixel count. Per query and size, a table holds the summed chamfer
+    distances of every code at every group position, so an entry costs ``s * s / g``
+    lookups instead of ``s * s``. With ``g = 4`` an 8x8 image is 16 lookups and 32
+    bytes (32 MB per million entries; table 0.9 MB, in L2). The scan runs in chunks on
+    a thread pool (the compiled kernel releases the GIL). The quantile of a strided
+    sample bounds the k smallest errors, so only a few thousand candidates are sorted;
+    ties are broken by the lower entry id.
+
+Sources
+    Each size in the ``database`` mapping is a :class:`PackedTinyImages` (resident,
+    required for the first stage, which scans every entry), an ``(N, s, s) uint8``
+    array, or a :data:`RowLoader` ``ids -> (len(ids), s, s) uint8`` that the HDF5
+    reader can supply for the large sizes; loaded rows are packed on the fly.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import time
+from collections.abc import Callable, Collection, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import TypeAlias
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from glovedb import _search_kernels
+from glovedb._validate import as_array
+from glovedb.chamfer import (
+    NUM_CLASSES,
+    chamfer_maps,
+    check_labels,
+)
+from glovedb.rotations import weighted_rotation_average
+
+RowLoader: TypeAlias = Callable[[NDArray[np.int64]], ArrayLike]
+"""Loads the tiny images of the given entry ids (ascending, unique) as ``(m, s, s)``."""
+
+_NUM_LABELS = NUM_CLASSES + 1
+_GROUPS = (4, 2, 1)  # 11 ** g codes must fit uint16
+_MAX_TABLE_ENTRIES = 1 << 18  # 1 MB of float32 per query and size: stays in L2
+_MIN_ROWS_PER_CHUNK = 1 << 14
+_SAMPLE_SIZE = 1 << 14
+
+
+@dataclass(frozen=True)
+class CascadeStage:
+    """One stage of the cascade: re-rank at ``size`` and keep the ``k`` nearest."""
+
+    size: int
+    k: int
+
+
+@dataclass(frozen=True)
+class PackedTinyImages:
+    """Tiny images of one size in the compact scan layout of :func:`pack_tiny_images`.
+
+    Attributes
+    ----------
+    codes : (N, s * s // group) uint16, C-contiguous
+        Code of each group of ``group`` consecutive pixels (row-major order).
+    glove_pixels : (N,) uint16
+        Number of non-background pixels per image.
+    size : int
+        Side length ``s`` in pixels.
+    group : int
+        Pixels per code: 1, 2 or 4.
+    """
+
+    codes: NDArray[np.uint16]
+    glove_pixels: NDArray[np.uint16]
+    size: int
+    group: int
+
+    def __post_init__(self) -> None:
+        if self.group not in _GROUPS or (self.size * self.size) % self.group:
+            raise ValueError(f"group: expected one of {_GROUPS} dividing s * s, got {self.group}")
+        positions = self.size * self.size // self.group
+        as_array("codes", self.codes, (None, positions), np.uint16)
+        as_array("glove_pixels", self.glove_pixels, (len(self.codes),), np.uint16)
+        if self.codes.dtype != np.uint16 or self.glove_pixels.dtype != np.uint16:
+            raise TypeError("codes, glove_pixels: expected uint16 arrays")
+        if not self.codes.flags.c_contiguous:
+            raise ValueError("codes: expected a C-contiguous array")
+
+    @property
+    def num_entries(self) -> int:
+        """Number of images ``N``."""
+        return len(self.codes)
+
+
+TinyImageSource: TypeAlias = PackedTinyImages | NDArray[np.uint8] | RowLoader
+"""The images of one size in ``cascade_search``'s ``database`` mapping."""
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    """Outcome of :func:`cascade_search`, nearest first.
+
+    Attributes
+    ----------
+    entry_ids : (k,) int64
+        Database entry ids, by increasing error (ties: lower id first). ``k`` is the
+        last stage's k, or fewer if the database is smaller.
+    errors : (k,) float32
+        Matching error ``m(D, Q)`` in pixels at the last stage's size.
+    stage_ms : tuple of float
+        Wall time of each stage in milliseconds (query maps, loading, scan, selection).
+    cascade : tuple of CascadeStage
+        The stages that ran.
+    """
+
+    entry_ids: NDArray[np.int64]
+    errors: NDArray[np.float32]
+    stage_ms: tuple[float, ...]
+    cascade: tuple[CascadeStage, ...]
+
+
+@dataclass(frozen=True)
+class InterpolatedPose:
+    """Posture and rotation blended from the nearest entries by :func:`interpolate_pose`.
+
+    Attributes
+    ----------
+    posture_rad : (20,) float64
+        Weighted mean joint angles in radians (NaN when not ``valid``).
+    rotation : (3, 3) float64
+        Weighted average rotation (NaN when not ``valid``).
+    weights : (k,) float64
+        Normalised weight of each entry (zeros when not ``valid``).
+    valid : bool
+        False when no entry had a finite error.
+    """
+
+    posture_rad: NDArray[np.float64]
+    rotation: NDArray[np.float64]
+    weights: NDArray[np.float64]
+    valid: bool
+
+
+def parse_cascade(spec: str, *, sizes: Collection[int] | None = None) -> tuple[CascadeStage, ...]:
+    """Parse ``"size:k,size:k,..."`` into cascade stages.
+
+    Parameters
+    ----------
+    spec : str
+        Comma-separated ``size:k`` pairs, e.g. ``"8:2000,16:300,64:3"``.
+    sizes : collection of int, optional
+        Tiny image sizes the database holds; every stage size must be one of them.
+
+    Returns
+    -------
+    tuple of CascadeStage
+
+    Raises
+    ------
+    ValueError
+        On a malformed pair, a non-positive size or k, sizes that do not strictly
+        increase, k values that increase, or a size not in ``sizes``.
+    """
+    if not isinstance(spec, str):
+        raise TypeError(f"cascade: expected a string such as '8:2000,64:3', got {type(spec)}")
+    stages = []
+    for part in spec.split(","):
+        fields = part.strip().split(":")
+        if len(fields) != 2 or not all(f.strip().isdigit() for f in fields):
+            raise ValueError(f"cascade: expected 'size:k' pairs like '8:2000,64:3', got {spec!r}")
+        stages.append(CascadeStage(size=int(fields[0]), k=int(fields[1])))
+    return check_cascade(stages, sizes=sizes)
+
+
+def check_cascade(
+    stages: Sequence[CascadeStage], *, sizes: Collection[int] | None = None
+) -> tuple[CascadeStage, ...]:
+    """Check cascade stages (see :func:`parse_cascade` for the rules) and return them."""
+    stages = tuple(stages)
+    if not stages:
+        raise ValueError("cascade: needs at least one stage")
+    for stage in stages:
+        if stage.size < 1 or stage.k < 1:
+            raise ValueError(f"cascade: size and k must be positive, got {stage}")
+        if sizes is not None and stage.size not in sizes:
+            raise ValueError(
+                f"cascade: size {stage.size} is not in the database (has {sorted(sizes)})"
+            )
+    for before, after in itertools.pairwise(stages):
+        if after.size <= before.size:
+            raise ValueError(f"cascade: sizes must increase, got {before.size} then {after.size}")
+        if after.k > before.k:
+            raise ValueError(f"cascade: k must not increase, got {before.k} then {after.k}")
+    return stages
+
+
+def pack_tiny_images(images: ArrayLike, *, group: int | None = None) -> PackedTinyImages:
+    """Convert label images to the compact scan layout.
+
+    Parameters
+    ----------
+    images : (N, s, s) uint8
+        Labels 0..10.
+    group : {1, 2, 4}, optional
+        Pixels per code. Default: the largest whose per-query table has at most 2**18
+        entries (4 for 8x8, 2 for 16x16 up to 64x64).
+
+    Returns
+    -------
+    PackedTinyImages
+    """
+    labels = check_labels("images", images, (None, None, None))
+    size = labels.shape[-1]
+    group = _default_group(size) if group is None else group
+    if group not in _GROUPS or (size * size) % group:
+        raise ValueError(f"group: expected one of {_GROUPS} dividing s * s, got {group}")
+    grouped = labels.reshape(len(labels), size * size // group, group)
+    codes = np.zeros(grouped.shape[:2], np.uint16)
+    for index in range(group):
+        codes *= _NUM_LABELS
+        codes += grouped[:, :, index]
+    flat = labels.reshape(len(labels), size * size)
+    glove_pixels = np.count_nonzero(flat, axis=1).astype(np.uint16)
+    return PackedTinyImages(codes=codes, glove_pixels=glove_pixels, size=size, group=group)
+
+
+def tiny_image_distances(
+    query_maps: ArrayLike, packed: PackedTinyImages, *, workers: int | None = None
+) -> NDArray[np.float32]:
+    """Directed distance ``m(D, Q)`` of every packed image ``D`` to the query ``Q``.
+
+    Parameters
+    ----------
+    query_maps : (10, s, s) float32
+        Chamfer maps of the query (:func:`glovedb.chamfer.chamfer_maps`).
+    packed : PackedTinyImages
+        Database images of the same size ``s``.
+    workers : int, optional
+        Threads for the scan; default ``os.cpu_count()``.
+
+    Returns
+    -------
+    (N,) float32
+        Pixels; ``inf`` for images without glove pixels.
+    """
+    return _scan(query_maps, packed, workers)
+
+
+def cascade_search(
+    query_images: Mapping[int, ArrayLike],
+    database: Mapping[int, TinyImageSource],
+    cascade: str | Sequence[CascadeStage],
+    *,
+    workers: int | None = None,
+) -> SearchResult:
+    """Cascaded k-NN search of a query's tiny images (see the module docstring).
+
+    Parameters
+    ----------
+    query_images : mapping of int to (s, s) uint8
+        The query's tiny image for every size in the cascade. Each must have at least
+        one glove pixel.
+    database : mapping of int to PackedTinyImages, (N, s, s) uint8 or RowLoader
+        Tiny images of all ``N`` entries per size. The first stage's size must be
+        in memory (packed, or an array that is packed on every call, which is slow).
+    cascade : str or sequence of CascadeStage
+        E.g. ``"8:2000,16:300,64:3"``; checked by :func:`check_cascade`.
+    workers : int, optional
+        Threads for the scans; default ``os.cpu_count()``.
+
+    Returns
+    -------
+    SearchResult
+    """
+    stages = (
+        parse_cascade(cascade, sizes=database.keys())
+        if isinstance(cascade, str)
+        else check_cascade(cascade, sizes=database.keys())
+    )
+    num_entries = _num_entries(database, stages[0].size)
+    ids: NDArray[np.int64] | None = None
+    ranked_ids = np.empty(0, np.int64)
+    errors = np.empty(0, np.float32)
+    stage_ms = []
+    for stage in stages:
+        start = time.perf_counter()
+        maps = chamfer_maps(_query_image(query_images, stage.size))
+        packed = _rows(database[stage.size], ids, stage.size, num_entries)
+        stage_errors = _scan(maps, packed, workers)
+        keep = _smallest(stage_errors, stage.k)
+        ranked_ids = keep if ids is None else ids[keep]
+        errors = stage_errors[keep]
+        ascending = np.argsort(ranked_ids)
+        ids = ranked_ids[ascending]
+        stage_ms.append(1000.0 * (time.perf_counter() - start))
+    return SearchResult(
+        entry_ids=ranked_ids.astype(np.int64),
+        errors=errors,
+        stage_ms=tuple(stage_ms),
+        cascade=stages,
+    )
+
+
+def interpolate_pose(
+    errors: ArrayLike,
+    postures_rad: ArrayLike,
+    rotations: ArrayLike,
+    *,
+    epsilon_px: float = 0.01,
+) -> InterpolatedPose:
+    """Blend the nearest entries' poses with weights ``1 / (error + epsilon_px)``.
+
+    Joint angles are averaged arithmetically (they lie within joint limits, far from
+    the +-pi wrap); rotations with :func:`glovedb.rotations.weighted_rotation_average`.
+
+    Parameters
+    ----------
+    errors : (k,) float32
+        Matching errors in pixels (``SearchResult.errors``); ``inf`` gets weight 0.
+    postures_rad : (k, 20) float
+        Postures of the entries in radians.
+    rotations : (k, 3, 3) float
+        Rotations of the entries.
+    epsilon_px : float
+        Keeps the weight of an exact match (error 0) finite, in pixels.
+
+    Returns
+    -------
+    InterpolatedPose
+    """
+    error = as_array("errors", errors, (None,), np.float64, kind="fiu")
+    postures = as_array("postures_rad", postures_rad, (len(error), 20), np.float64, finite=True)
+    rotation = as_array("rotations", rotations, (len(error), 3, 3), np.float64, finite=True)
+    if not epsilon_px > 0:
+        raise ValueError(f"epsilon_px: must be positive, got {epsilon_px}")
+    if np.any(np.isnan(error)) or np.any(error < 0):
+        raise ValueError("errors: must be non-negative (inf allowed)")
+    weights = np.where(np.isfinite(error), 1.0 / (error + epsilon_px), 0.0)
+    if not np.any(weights > 0):
+        return InterpolatedPose(
+            posture_rad=np.full(20, np.nan),
+            rotation=np.full((3, 3), np.nan),
+            weights=np.zeros(len(error)),
+            valid=False,
+        )
+    weights /= weights.sum()
+    return InterpolatedPose(
+        posture_rad=weights @ postures,
+        rotation=weighted_rotation_average(rotation, weights),
+        weights=weights,
+        valid=True,
+    )
+
+
+def _default_group(size: int) -> int:
+    positions = size * size
+    return next(
+        g
+        for g in _GROUPS
+        if positions % g == 0 and positions // g * _NUM_LABELS**g <= _MAX_TABLE_ENTRIES
+    )
+
+
+def _lookup_table(maps: NDArray[np.float32], group: int) -> NDArray[np.float32]:
+    """``table[p, code]``: summed chamfer distances of the pixels of group ``p``."""
+    size = maps.shape[-1]
+    per_label = np.concatenate([np.zeros((1, size * size), np.float32), maps.reshape(10, -1)])
+    per_pixel = per_label.T.reshape(size * size // group, group, _NUM_LABELS)
+    table = per_pixel[:, 0]
+    for index in range(1, group):
+        table = (table[:, :, None] + per_pixel[:, index, None, :]).reshape(len(table), -1)
+    return np.ascontiguousarray(table)
+
+
+def _scan(
+    query_maps: ArrayLike, packed: PackedTinyImages, workers: int | None
+) -> NDArray[np.float32]:
+    """``m(D, Q)`` of all packed rows, scanned in chunks on ``workers`` threads."""
+    size = packed.size
+    maps = as_array("query_maps", query_maps, (NUM_CLASSES, size, size), np.float32)
+    table = _lookup_table(maps, packed.group)
+    workers = (os.cpu_count() or 1) if workers is None else workers
+    if workers < 1:
+        raise ValueError(f"workers: must be at least 1, got {workers}")
+    num_rows = packed.num_entries
+    # A few chunks per thread balance the load when another process takes a core.
+    num_chunks = max(1, min(4 * workers, num_rows // _MIN_ROWS_PER_CHUNK))
+    bounds = np.linspace(0, num_rows, num_chunks + 1)
+    starts_stops = list(itertools.pairwise(bounds.astype(np.int64).tolist()))
+    errors = np.empty(num_rows, np.float32)
+
+    def score(start_stop: tuple[int, int]) -> None:
+        _search_kernels.score_rows(packed.codes, packed.glove_pixels, table, *start_stop, errors)
+
+    if workers == 1 or len(starts_stops) == 1:
+        for start_stop in starts_stops:
+            score(start_stop)
+    else:
+        with ThreadPoolExecutor(min(workers, len(starts_stops))) as pool:
+            list(pool.map(score, starts_stops))
+    return errors
+
+
+def _smallest(errors: NDArray[np.float32], k: int) -> NDArray[np.int64]:
+    """Indices of the ``k`` smallest errors, ascending by (error, index).
+
+    A strided sample's quantile, a little above ``k / N``, bounds the candidates so
+    that only a few thousand are sorted; if it is too tight, all are.
+    """
+    k = min(k, len(errors))
+    if k == 0:
+        return np.empty(0, np.int64)
+    stride = max(1, len(errors) // _SAMPLE_SIZE)
+    sample = errors[::stride]
+    rank = min(len(sample) - 1, math.ceil(1.5 * k / stride) + 32)
+    threshold = np.partition(sample, rank)[rank]
+    rows = np.flatnonzero(errors <= threshold)
+    if len(rows) < k:
+        rows = np.arange(len(errors))
+    return rows[np.lexsort((rows, errors[rows]))[:k]]
+
+
+def _query_image(query_images: Mapping[int, ArrayLike], size: int) -> NDArray[np.uint8]:
+    if size not in query_images:
+        raise ValueError(f"query_images: no tiny image of size {size}")
+    name = f"query_images[{size}]"
+    image = check_labels(name, query_images[size], (size, size))
+    if not np.any(image):
+        raise ValueError(f"{name}: has no glove pixels")
+    return image
+
+
+def _num_entries(database: Mapping[int, TinyImageSource], first_size: int) -> int:
+    counts = {
+        size: source.num_entries if isinstance(source, PackedTinyImages) else len(source)
+        for size, source in database.items()
+        if not callable(source)
+    }
+    if first_size not in counts:
+        raise ValueError(f"database[{first_size}]: the first stage's images must be in memory")
+    if len(set(counts.values())) > 1:
+        raise ValueError(f"database: sizes hold different numbers of entries: {counts}")
+    return counts[first_size]
+
+
+def _rows(
+    source: TinyImageSource,
+    ids: NDArray[np.int64] | None,
+    size: int,
+    num_entries: int,
+) -> PackedTinyImages:
+    """The packed images of ``ids`` (ascending), or of all entries when ``ids`` is None."""
+    name = f"database[{size}]"
+    if isinstance(source, PackedTinyImages):
+        if source.size != size:
+            raise ValueError(f"{name}: holds {source.size}x{source.size} images")
+        if ids is None:
+            return source
+        return PackedTinyImages(
+            codes=source.codes[ids],
+            glove_pixels=source.glove_pixels[ids],
+            size=size,
+            group=source.group,
+        )
+    if callable(source):
+        assert ids is not None  # _num_entries rejects a loader in the first stage
+        loaded = as_array(f"rows loaded for {name}", source(ids), (len(ids), size, size))
+        return pack_tiny_images(loaded)
+    images = as_array(name, source, (num_entries, size, size), kind="iu")
+    return pack_tiny_images(images if ids is None else images[ids])
