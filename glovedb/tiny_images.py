@@ -23,6 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from glovedb import _tiny_kernels
 from glovedb._validate import as_array
 
 N_LABELS = 11  # background and 10 glove classes
@@ -78,44 +79,24 @@ def tiny_images_from_pixels(
         return {s: np.zeros((len(rolls), s, s), np.uint8) for s in sizes}
 
     # Rotate about the centroid: the crop is recomputed, so the centre does not matter.
-    centred = uv - uv.mean(axis=0)
-    cos, sin = np.cos(rolls), np.sin(rolls)
     # A camera turned by phi about +z sees x' = x cos - y sin, y' = x sin + y cos, and
-    # with fx == fy its pixels move the same way about the principal point.
-    u = centred[:, 0] * cos[:, None] - centred[:, 1] * sin[:, None]
-    v = centred[:, 0] * sin[:, None] + centred[:, 1] * cos[:, None]
-    low_u, high_u = u.min(axis=1) - 0.5, u.max(axis=1) + 0.5
-    low_v, high_v = v.min(axis=1) - 0.5, v.max(axis=1) + 0.5
-    side = np.maximum(high_u - low_u, high_v - low_v)
-    origin_u = (low_u + high_u - side) / 2
-    origin_v = (low_v + high_v - side) / 2
-    scale = largest / side
-    col = np.clip(((u - origin_u[:, None]) * scale[:, None]).astype(np.int64), 0, largest - 1)
-    row = np.clip(((v - origin_v[:, None]) * scale[:, None]).astype(np.int64), 0, largest - 1)
-    roll_index = np.arange(len(rolls))[:, None]
-    bins = ((roll_index * largest + row) * largest + col) * N_LABELS + classes[None, :]
-    counts = np.bincount(bins.ravel(), minlength=len(rolls) * largest * largest * N_LABELS)
-    counts = counts.reshape(len(rolls), largest, largest, N_LABELS).astype(np.float64)
-    # Background covers whatever part of a cell the glove pixels do not.
-    cell_area = (1.0 / scale)[:, None, None] ** 2
-    counts[..., 0] = np.maximum(cell_area - counts[..., 1:].sum(axis=-1), 0.0)
-
+    # with fx == fy its pixels turn the same way about the principal point.
+    centred = uv - uv.mean(axis=0)
+    counts = _tiny_kernels.cell_counts(
+        np.ascontiguousarray(centred[:, 0]),
+        np.ascontiguousarray(centred[:, 1]),
+        np.ascontiguousarray(classes),
+        np.cos(rolls),
+        np.sin(rolls),
+        largest,
+        N_LABELS,
+    )
     images = {}
     for size in reversed(sizes):
         while counts.shape[1] > size:
-            half = counts.shape[1] // 2
-            counts = counts.reshape(len(rolls), half, 2, half, 2, N_LABELS).sum(axis=(2, 4))
-        images[size] = _majority(counts)
+            counts = _tiny_kernels.halve(counts)
+        images[size] = _tiny_kernels.majority(counts)
     return {s: images[s] for s in sizes}
-
-
-def _majority(counts: NDArray[np.float64]) -> NDArray[np.uint8]:
-    """Class with the largest count along the last axis; a tie goes to the glove."""
-    glove = counts[..., 1:]
-    best_glove = np.argmax(glove, axis=-1)
-    best_count = np.take_along_axis(glove, best_glove[..., None], axis=-1)[..., 0]
-    winner = np.where(best_count >= counts[..., 0], best_glove + 1, 0)
-    return winner.astype(np.uint8)
 
 
 def tiny_images(

@@ -164,7 +164,7 @@ def database_views(
     """
     if rolls < 1:
         raise ValueError(f"rolls: expected at least 1, got {rolls}")
-    roll_rad = np.arange(rolls) * (2 * np.pi / rolls)
+    roll_rad = np.arange(rolls, dtype=np.float64) * (2 * np.pi / rolls)
     target = np.array(HAND_CENTRE) * hand_length_m
     rotations, translations = [], []
     for direction in icosphere(subdivisions):

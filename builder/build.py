@@ -1,0 +1,441 @@
+"""Building a posture database: plan, render in worker processes, assemble the file.
+
+How a build stays safe when it is interrupted:
+
+1. Every posture's tiny images are written to their own shard file in a work folder
+   ``DB.h5.parts/`` beside the output, by writing a temporary name and renaming it,
+   so a shard is either complete or absent. The folder also holds the plan's
+   settings; ``--resume`` checks them and renders only the missing shards.
+2. When every shard exists, the database is assembled into ``DB.h5.partial``, marked
+   complete last, and renamed to ``DB.h5``; then the work folder is removed. A
+   reader refuses a file that is not marked complete.
+
+Workers are separate processes started with ``spawn`` (never ``fork``, because an
+OpenGL context must not cross a fork), each with its own renderer. Shards are
+assembled in posture order, so the output does not depend on the number of workers
+and two builds of one config give the same bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import multiprocessing
+import os
+import shutil
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+from numpy.typing import NDArray
+
+import glovedb
+from builder.config import DatabaseConfig, config_from_dict
+from builder.sampling import farthest_point_selection, synergy_postures
+from glovedb.camera import CameraIntrinsics
+from glovedb.database import FORMAT_NAME, FORMAT_VERSION, image_dataset_options
+from glovedb.posture_io import load_postures
+from glovedb.postures import load_named_postures
+from glovedb.resources import config_path
+from glovedb.tiny_images import tiny_images_from_pixels
+from glovedb.trajectory import load_trajectory
+from glovedb.views import database_views, icosphere
+
+# Radius around the hand centre, in hand lengths, that the render must contain.
+_HAND_RADIUS = 0.66
+
+
+@dataclass(frozen=True)
+class BuildPlan:
+    """Everything a worker needs to render any posture of the database.
+
+    Attributes
+    ----------
+    config : DatabaseConfig
+    postures_rad : (P, 20) float64
+    posture_names : tuple of str
+    view_rotations : (V * R, 3, 3) float64
+        ``cam_R_hand`` of every view, camera-position-major (view ``p * R + r``).
+    view_translations_m : (V * R, 3) float64
+    roll_rad : (R,) float64
+    camera : CameraIntrinsics
+        The square render camera.
+    """
+
+    config: DatabaseConfig
+    postures_rad: NDArray[np.float64]
+    posture_names: tuple[str, ...]
+    view_rotations: NDArray[np.float64]
+    view_translations_m: NDArray[np.float64]
+    roll_rad: NDArray[np.float64]
+    camera: CameraIntrinsics
+
+    @property
+    def camera_positions(self) -> int:
+        return len(self.view_rotations) // len(self.roll_rad)
+
+    @property
+    def views_per_posture(self) -> int:
+        return len(self.view_rotations)
+
+    @property
+    def entries(self) -> int:
+        return len(self.postures_rad) * self.views_per_posture
+
+
+def collect_postures(config: DatabaseConfig) -> tuple[NDArray[np.float64], tuple[str, ...]]:
+    """The configured postures in order (named, files, trajectories, random), then the
+    low-dispersion selection if one is asked for."""
+    sources = config.postures
+    base = Path(config.base_dir)
+    postures: list[NDArray[np.float64]] = []
+    names: list[str] = []
+    named = load_named_postures()
+    for name in sources.named:
+        if name not in named:
+            raise ValueError(f"unknown posture {name!r}; known: {', '.join(named)}")
+        postures.append(named[name][None])
+        names.append(name)
+    for file in sources.files:
+        loaded = load_postures(base / file)
+        postures.append(loaded)
+        names += [f"{Path(file).name}:{i}" for i in range(len(loaded))]
+    for file in sources.trajectories:
+        trajectory = load_trajectory(base / file)
+        count = int(np.floor(trajectory.duration_s * sources.trajectory_fps)) + 1
+        sampled, _, _ = trajectory.sample(np.arange(count) / sources.trajectory_fps)
+        postures.append(sampled)
+        names += [f"{Path(file).name}@{i / sources.trajectory_fps:g}s" for i in range(count)]
+    if sources.random is not None:
+        settings = sources.random
+        drawn = synergy_postures(
+            settings.count,
+            np.array(list(named.values())),
+            synergies=settings.synergies,
+            spread=settings.spread,
+            noise_deg=settings.noise_deg,
+            seed=settings.seed,
+        )
+        postures.append(drawn)
+        names += [f"random:{i}" for i in range(settings.count)]
+    all_postures = np.concatenate(postures)
+    if sources.select is not None:
+        if sources.select > len(all_postures):
+            raise ValueError(f"select = {sources.select} but only {len(all_postures)} postures")
+        picks = farthest_point_selection(all_postures, sources.select)
+        return all_postures[picks], tuple(names[i] for i in picks)
+    return all_postures, tuple(names)
+
+
+def render_camera(config: DatabaseConfig) -> CameraIntrinsics:
+    """A square camera in which the whole hand fits from any direction at the distance."""
+    size = config.images.render_size
+    radius = _HAND_RADIUS * config.hand_length_m
+    distance = config.views.distance_m
+    # The widest a sphere of this radius can look: tan = r / sqrt(d^2 - r^2).
+    focal = (size / 2 - 2) * math.sqrt(distance**2 - radius**2) / radius
+    centre = (size - 1) / 2
+    return CameraIntrinsics(size, size, focal, focal, centre, centre)
+
+
+def make_plan(config: DatabaseConfig) -> BuildPlan:
+    """Postures, views and render camera of a configuration."""
+    postures, names = collect_postures(config)
+    rotations, translations, roll_rad = database_views(
+        config.views.subdivisions,
+        config.views.rolls,
+        distance_m=config.views.distance_m,
+        hand_length_m=config.hand_length_m,
+    )
+    return BuildPlan(
+        config=config,
+        postures_rad=postures,
+        posture_names=names,
+        view_rotations=rotations,
+        view_translations_m=translations,
+        roll_rad=roll_rad,
+        camera=render_camera(config),
+    )
+
+
+def stored_settings(config: DatabaseConfig) -> dict[str, Any]:
+    """The settings recorded in the database (and compared on ``--resume``)."""
+    settings = config.as_dict()
+    settings.pop("base_dir")
+    return {"project_version": glovedb.__version__, "config": settings}
+
+
+# Rendering one posture -------------------------------------------------------------
+
+
+class PostureRenderer:
+    """Renders all views of any posture of a plan (one OpenGL context).
+
+    Parameters
+    ----------
+    plan : BuildPlan
+    """
+
+    def __init__(self, plan: BuildPlan) -> None:
+        from builder.render import GloveRenderer
+        from glovedb.hand_model import make_skeleton
+        from glovedb.mesh import make_hand_mesh
+
+        self.plan = plan
+        mesh = make_hand_mesh(
+            make_skeleton(plan.config.hand_length_m), spacing_m=plan.config.images.mesh_spacing_m
+        )
+        self._renderer = GloveRenderer(plan.camera, mesh=mesh)
+
+    def tiny_images(self, posture_index: int) -> dict[int, NDArray[np.uint8]]:
+        """``{size: (V, s, s) uint8}`` for every view of the posture, view-major order
+        (camera position, then roll)."""
+        plan = self.plan
+        rolls = len(plan.roll_rad)
+        # Render roll 0 of every camera position; the other rolls rotate its pixels.
+        label_images = self._renderer.label_images(
+            plan.postures_rad[posture_index],
+            plan.view_rotations[::rolls],
+            plan.view_translations_m[::rolls],
+        )
+        if label_images[:, [0, -1], :].any() or label_images[:, :, [0, -1]].any():
+            raise RuntimeError("the hand left the render; the render camera is too narrow")
+        per_position = []
+        for labels in label_images:
+            rows, cols = np.nonzero(labels)
+            pixels = np.stack([cols, rows], axis=1).astype(np.float64)
+            per_position.append(
+                tiny_images_from_pixels(
+                    pixels, labels[rows, cols], plan.config.images.sizes, rolls_rad=plan.roll_rad
+                )
+            )
+        return {
+            size: np.concatenate([images[size] for images in per_position])
+            for size in plan.config.images.sizes
+        }
+
+    def close(self) -> None:
+        self._renderer.close()
+
+
+# Shards ----------------------------------------------------------------------------
+
+
+def shard_path(parts: Path, posture_index: int) -> Path:
+    return parts / f"posture_{posture_index:07d}.npz"
+
+
+def write_shard(parts: Path, posture_index: int, images: dict[int, NDArray[np.uint8]]) -> None:
+    """Write one posture's images atomically (temporary name, then rename)."""
+    final = shard_path(parts, posture_index)
+    temporary = final.with_suffix(".tmp.npz")
+    arrays: dict[str, Any] = {f"tiny_{size}": array for size, array in images.items()}
+    np.savez_compressed(temporary, **arrays)
+    os.replace(temporary, final)
+
+
+def read_shard(parts: Path, posture_index: int, sizes: tuple[int, ...]) -> dict[int, NDArray]:
+    with np.load(shard_path(parts, posture_index), allow_pickle=False) as data:
+        return {size: data[f"tiny_{size}"] for size in sizes}
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _worker_start(settings: dict[str, Any], base_dir: str, parts: str) -> None:
+    # One rasteriser thread per worker: the workers already fill the cores.
+    os.environ["LP_NUM_THREADS"] = "1"
+    config = config_from_dict(settings, base_dir=base_dir)
+    _WORKER["renderer"] = PostureRenderer(make_plan(config))
+    _WORKER["parts"] = Path(parts)
+
+
+def _worker_render(posture_index: int) -> int:
+    images = _WORKER["renderer"].tiny_images(posture_index)
+    write_shard(_WORKER["parts"], posture_index, images)
+    return posture_index
+
+
+# The build -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class BuildReport:
+    """What a build did."""
+
+    path: str
+    entries: int
+    postures: int
+    rendered_postures: int
+    seconds: float
+    render_seconds: float
+
+    @property
+    def entries_per_second(self) -> float:
+        """Entries rendered per second of rendering (resumed postures not counted)."""
+        rendered = self.rendered_postures * (self.entries // max(self.postures, 1))
+        return rendered / max(self.render_seconds, 1e-9)
+
+
+def build_database(
+    config: DatabaseConfig,
+    out: str | Path,
+    *,
+    workers: int = 1,
+    resume: bool = False,
+    progress: Callable[[Iterator[int], int], Iterator[int]] | None = None,
+) -> BuildReport:
+    """Build the database of ``config`` into ``out`` (see the module docstring).
+
+    Parameters
+    ----------
+    config : DatabaseConfig
+    out : str or Path
+        ``.h5`` file; replaced only when the new one is complete.
+    workers : int
+        Worker processes; 1 renders in this process.
+    resume : bool
+        Continue an interrupted build of the same settings.
+    progress : callable, optional
+        Wraps the iterator of finished posture indices (e.g. a tqdm bar); receives
+        the iterator and the number of postures still to render.
+
+    Returns
+    -------
+    BuildReport
+    """
+    out = Path(out)
+    if out.suffix != ".h5":
+        raise ValueError(f"{out}: the database file name must end in .h5")
+    if not out.parent.is_dir():
+        raise ValueError(f"{out.parent}: folder does not exist")
+    if workers < 1:
+        raise ValueError(f"workers: expected at least 1, got {workers}")
+    started = time.perf_counter()
+    plan = make_plan(config)
+    parts = out.with_name(out.name + ".parts")
+    settings = stored_settings(config)
+    _prepare_parts(parts, settings, resume)
+    pending = [p for p in range(len(plan.postures_rad)) if not shard_path(parts, p).exists()]
+
+    render_started = time.perf_counter()
+    finished = _render_shards(plan, parts, pending, workers)
+    if progress is not None:
+        finished = progress(finished, len(pending))
+    for _ in finished:
+        pass
+    render_seconds = time.perf_counter() - render_started
+
+    partial = out.with_name(out.name + ".partial")
+    _assemble(plan, parts, partial, settings)
+    os.replace(partial, out)
+    shutil.rmtree(parts)
+    return BuildReport(
+        path=str(out),
+        entries=plan.entries,
+        postures=len(plan.postures_rad),
+        rendered_postures=len(pending),
+        seconds=time.perf_counter() - started,
+        render_seconds=render_seconds,
+    )
+
+
+def _prepare_parts(parts: Path, settings: dict[str, Any], resume: bool) -> None:
+    settings_file = parts / "settings.json"
+    if parts.exists():
+        if not resume:
+            raise ValueError(
+                f"{parts} holds an interrupted build: add --resume to continue it, or delete it"
+            )
+        try:
+            previous = json.loads(settings_file.read_text())
+        except (OSError, json.JSONDecodeError):
+            previous = None
+        if previous != json.loads(json.dumps(settings)):
+            raise ValueError(f"{parts}: the interrupted build has other settings; delete it")
+        for leftover in parts.glob("*.tmp.npz"):
+            leftover.unlink()
+        return
+    parts.mkdir()
+    settings_file.write_text(json.dumps(settings, indent=1, sort_keys=True))
+
+
+def _render_shards(plan: BuildPlan, parts: Path, pending: list[int], workers: int) -> Iterator[int]:
+    if not pending:
+        return
+    if workers == 1:
+        renderer = PostureRenderer(plan)
+        try:
+            for index in pending:
+                write_shard(parts, index, renderer.tiny_images(index))
+                yield index
+        finally:
+            renderer.close()
+        return
+    context = multiprocessing.get_context("spawn")
+    arguments = (
+        {k: v for k, v in plan.config.as_dict().items() if k != "base_dir"},
+        plan.config.base_dir,
+        str(parts),
+    )
+    with ProcessPoolExecutor(
+        max_workers=workers, mp_context=context, initializer=_worker_start, initargs=arguments
+    ) as pool:
+        yield from pool.map(_worker_render, pending)
+
+
+def _assemble(plan: BuildPlan, parts: Path, partial: Path, settings: dict[str, Any]) -> None:
+    """Write the whole database into ``partial`` from the shards; mark it complete last."""
+    config = plan.config
+    sizes = tuple(config.images.sizes)
+    views = plan.views_per_posture
+    postures = len(plan.postures_rad)
+    entries = plan.entries
+    view_rotations = plan.view_rotations.astype(np.float32)
+    with h5py.File(partial, "w", libver=("earliest", "v110"), track_order=False) as file:
+        attrs = file.attrs
+        attrs["format"] = FORMAT_NAME
+        attrs["format_version"] = FORMAT_VERSION
+        attrs["complete"] = False
+        attrs["name"] = config.name
+        attrs["project_version"] = glovedb.__version__
+        attrs["settings_json"] = json.dumps(settings, sort_keys=True)
+        attrs["camera_positions"] = plan.camera_positions
+        attrs["rolls"] = len(plan.roll_rad)
+        attrs["hand_length_m"] = config.hand_length_m
+        attrs["render_camera_json"] = json.dumps(plan.camera.to_open3d_json())
+        attrs["pattern_toml"] = config_path("glove/pattern.toml").read_text()
+        file["postures"] = plan.postures_rad.astype(np.float32)
+        file["posture_names"] = np.array(plan.posture_names, dtype=h5py.string_dtype())
+        file["views/rotation"] = view_rotations
+        file["views/translation_m"] = plan.view_translations_m.astype(np.float32)
+        file["views/camera_direction"] = icosphere(config.views.subdivisions)
+        file["views/roll_rad"] = plan.roll_rad
+        file["entries/posture_id"] = np.repeat(np.arange(postures, dtype=np.int32), views)
+        file["entries/view_id"] = np.tile(np.arange(views, dtype=np.int32), postures)
+        file.create_dataset(
+            "entries/rotation", data=np.tile(view_rotations, (postures, 1, 1)),
+            chunks=(min(entries, 1 << 16), 3, 3), compression="gzip", compression_opts=4,
+        )  # fmt: skip
+        datasets = {
+            size: file.create_dataset(
+                f"tiny/{size}",
+                shape=(entries, size, size),
+                dtype=np.uint8,
+                **image_dataset_options(size, entries),
+            )
+            for size in sizes
+        }
+        batch = max(1, (1 << 26) // (views * sum(s * s for s in sizes)))
+        for start in range(0, postures, batch):
+            stop = min(postures, start + batch)
+            shards = [read_shard(parts, p, sizes) for p in range(start, stop)]
+            for size, dataset in datasets.items():
+                rows = np.concatenate([shard[size] for shard in shards])
+                dataset[start * views : stop * views] = rows
+        attrs["complete"] = True

@@ -1,0 +1,205 @@
+"""Database builds: round trip, determinism, resume after a kill, tiny-image equivalences."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from builder.build import PostureRenderer, build_database, make_plan
+from builder.config import config_from_dict, load_config
+from glovedb.database import GloveDatabase
+from glovedb.postures import named_posture
+from glovedb.resources import config_path
+from glovedb.tiny_images import tiny_images
+from glovedb.views import HAND_CENTRE, pose_for_view
+
+pytestmark = pytest.mark.gl
+
+SMALL = {
+    "name": "small",
+    "postures": {"named": ["open", "pinch"]},
+    "views": {"subdivisions": 0, "rolls": 3},
+    "images": {"sizes": [8, 16, 32], "render_size": 96},
+}
+
+
+def small_config(**postures):
+    return config_from_dict({**SMALL, "postures": {**SMALL["postures"], **postures}})
+
+
+@pytest.fixture(scope="module")
+def small_database(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("db") / "small.h5"
+    build_database(small_config(), path)
+    return path
+
+
+def test_round_trip(small_database):
+    plan = make_plan(small_config())
+    with GloveDatabase(small_database) as database:
+        info = database.info()
+        assert (info.entries, info.postures, info.views_per_posture) == (72, 2, 36)
+        assert info.resolutions == (8, 16, 32) and info.camera_positions == 12
+        np.testing.assert_allclose(database.postures[1], named_posture("pinch"), atol=1e-6)
+        assert database.posture_names == ("open", "pinch")
+        np.testing.assert_array_equal(database.entry_posture_ids, np.repeat([0, 1], 36))
+        np.testing.assert_array_equal(database.entry_view_ids, np.tile(np.arange(36), 2))
+        np.testing.assert_allclose(
+            database.entry_rotations[36:], plan.view_rotations.astype(np.float32)
+        )
+        renderer = PostureRenderer(plan)
+        try:
+            expected = renderer.tiny_images(1)
+        finally:
+            renderer.close()
+        for size in (8, 16, 32):
+            images = database.images(size)
+            assert images.dtype == np.uint8 and images.shape == (72, size, size)
+            np.testing.assert_array_equal(images[36:], expected[size])
+            assert set(np.unique(images)) <= set(range(11))
+            assert np.all(images.reshape(72, -1).any(axis=1)), "every entry shows the glove"
+        ids = np.array([40, 3, 40])
+        np.testing.assert_array_equal(database.image_rows(32, ids), database.images(32)[ids])
+        assert (
+            json.loads(h5py.File(small_database)["/"].attrs["settings_json"])["config"]["name"]
+            == "small"
+        )
+
+
+def test_two_builds_give_the_same_bytes(small_database, tmp_path):
+    again = tmp_path / "again.h5"
+    build_database(small_config(), again)
+    assert again.read_bytes() == small_database.read_bytes()
+
+
+def test_workers_do_not_change_the_result(small_database, tmp_path):
+    parallel = tmp_path / "parallel.h5"
+    report = build_database(small_config(), parallel, workers=2)
+    assert report.entries == 72
+    assert parallel.read_bytes() == small_database.read_bytes()
+
+
+def test_resume_after_a_killed_build_equals_an_uninterrupted_build(tmp_path):
+    config = dict(SMALL, postures={"named": ["open", "fist", "pinch", "power", "ok", "point"]})
+    config_file = tmp_path / "six.toml"
+    config_file.write_text(_toml(config))
+    out = tmp_path / "six.h5"
+    command = [sys.executable, "-m", "glove_cli", "build", str(config_file), "--out", str(out),
+               "--workers", "1"]  # fmt: skip
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    parts = tmp_path / "six.h5.parts"
+    deadline = time.time() + 120
+    while len(list(parts.glob("posture_*.npz"))) < 2 and time.time() < deadline:
+        time.sleep(0.05)
+    os.kill(process.pid, signal.SIGKILL)
+    process.wait()
+    assert not out.exists(), "an interrupted build must not leave a database behind"
+    assert 2 <= len(list(parts.glob("posture_*.npz"))) < 6
+
+    again = subprocess.run(command, capture_output=True, text=True)
+    assert again.returncode == 2 and "--resume" in again.stderr
+    resumed = subprocess.run(command + ["--resume", "--json"], capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stderr
+    figures = json.loads(resumed.stdout)
+    assert figures["entries"] == 216 and figures["rendered_postures"] < 6
+    assert not parts.exists()
+
+    uninterrupted = tmp_path / "straight.h5"
+    build_database(load_config(config_file), uninterrupted)
+    assert out.read_bytes() == uninterrupted.read_bytes()
+
+
+def test_an_unfinished_file_is_not_a_database(small_database, tmp_path):
+    copy = tmp_path / "copy.h5"
+    copy.write_bytes(small_database.read_bytes())
+    with h5py.File(copy, "r+") as file:
+        file.attrs["complete"] = False
+    with pytest.raises(ValueError, match="unfinished"):
+        GloveDatabase(copy)
+    truncated = tmp_path / "truncated.h5"
+    truncated.write_bytes(small_database.read_bytes()[:5000])
+    with pytest.raises(ValueError, match="not a readable HDF5"):
+        GloveDatabase(truncated)
+
+
+def test_rolling_pixels_equals_rendering_a_rolled_camera():
+    """In-plane rotations are made from one render: equivalent up to aliasing."""
+    plan = make_plan(load_config(config_path("db/open_pinch_power.toml")))
+    renderer = PostureRenderer(plan)
+    try:
+        rolled = renderer.tiny_images(2)  # views: position-major, 18 rolls each
+        posture = plan.postures_rad[2]
+        for view in (1, 9, 16, 18 * 7 + 5, 18 * 30 + 11):
+            rendered = renderer._renderer.label_images(
+                posture,
+                plan.view_rotations[view : view + 1],
+                plan.view_translations_m[view : view + 1],
+            )[0]
+            direct = tiny_images(rendered)
+            for size in (8, 16, 32, 64):
+                mismatch = np.mean(direct[size] != rolled[size][view])
+                assert mismatch < 0.06, f"view {view} size {size}: {mismatch:.1%} differ"
+    finally:
+        renderer.close()
+
+
+def test_tiny_images_do_not_depend_on_distance_or_image_position(renderer):
+    """The same view of the hand, near and centred or far and off-centre."""
+    posture = named_posture("peace")
+    direction = np.array([0.2, 0.3, 1.0])
+    target = np.array(HAND_CENTRE) * 0.19
+    near_rotation, near_translation = pose_for_view(direction, 0.45, target_m=target)
+    near = tiny_images(renderer.render_labels(posture, near_rotation, near_translation).labels)
+    # Farther away and shifted sideways, the camera turned so the view direction is kept.
+    far_translation = near_translation * 0 + near_rotation @ -target + [0.12, -0.06, 0.8]
+    far = tiny_images(renderer.render_labels(posture, near_rotation, far_translation).labels)
+    for size in (8, 16, 32):
+        assert np.mean(near[size] != far[size]) < 0.06
+
+
+def test_config_errors_are_one_line(tmp_path):
+    with pytest.raises(ValueError, match="unknown key 'subdivision'"):
+        config_from_dict({**SMALL, "views": {"subdivision": 1}})
+    with pytest.raises(ValueError, match="names no source"):
+        config_from_dict({**SMALL, "postures": {}})
+    with pytest.raises(ValueError, match="render_size"):
+        config_from_dict({**SMALL, "images": {"sizes": [64], "render_size": 96}})
+    with pytest.raises(ValueError, match="not valid TOML"):
+        bad = tmp_path / "bad.toml"
+        bad.write_text("name = ")
+        load_config(bad)
+    with pytest.raises(ValueError, match=r"\.h5"):
+        build_database(small_config(), tmp_path / "db.hdf")
+
+
+def test_postures_from_files_random_and_selection(tmp_path):
+    from glovedb.posture_io import save_postures_csv
+
+    save_postures_csv(
+        tmp_path / "extra.csv", np.stack([named_posture("ok"), named_posture("fist")])
+    )
+    config = config_from_dict(
+        {**SMALL, "postures": {"named": ["open"], "files": ["extra.csv"],
+                               "random": {"count": 30, "seed": 3}, "select": 5}},
+        base_dir=str(tmp_path),
+    )  # fmt: skip
+    plan = make_plan(config)
+    assert plan.postures_rad.shape == (5, 20)
+    assert plan.posture_names[0] == "open"  # farthest-point selection starts at the first
+    assert make_plan(config).posture_names == plan.posture_names  # deterministic
+
+
+def _toml(config: dict) -> str:
+    lines = [f'name = "{config["name"]}"']
+    for table in ("postures", "views", "images"):
+        lines.append(f"[{table}]")
+        for key, value in config[table].items():
+            lines.append(f"{key} = {json.dumps(value)}")
+    return "\n".join(lines) + "\n"
