@@ -12,10 +12,19 @@ import sys
 import traceback
 from collections.abc import Sequence
 
-from glove_cli.commands import build, db, demo, pattern, render
+from glove_cli.commands import (
+    bench,
+    build,
+    db,
+    demo,
+    fingertips,
+    pattern,
+    render,
+    render_sequence,
+)
 from glovedb import __version__
 
-COMMANDS = (demo, render, pattern, build, db)
+COMMANDS = (demo, render, pattern, build, db, bench, fingertips, render_sequence)
 # Errors that mean "the input or the request is wrong", not "the program is wrong".
 USER_ERRORS = (ValueError, TypeError, FileNotFoundError, IsADirectoryError, PermissionError)
 

@@ -6,11 +6,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from helpers import SMALL_DATABASE
 
 from glovedb.hand_model import make_skeleton
 from glovedb.mesh import HandMesh, make_hand_mesh
-
-SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 @pytest.fixture(scope="session")
@@ -27,3 +26,14 @@ def renderer(hand_mesh: HandMesh) -> Iterator[object]:
 
     with GloveRenderer(KINECT_V1, mesh=hand_mesh) as instance:
         yield instance
+
+
+@pytest.fixture(scope="session")
+def small_database(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 72-entry database: open and pinch, 12 camera positions x 3 rolls, 8/16/32."""
+    from builder.build import build_database
+    from builder.config import config_from_dict
+
+    path = tmp_path_factory.mktemp("db") / "small.h5"
+    build_database(config_from_dict(SMALL_DATABASE), path)
+    return path

@@ -6,11 +6,11 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
+from helpers import SMALL_DATABASE
 
 from builder.build import PostureRenderer, build_database, make_plan
 from builder.config import config_from_dict, load_config
@@ -22,23 +22,11 @@ from glovedb.views import HAND_CENTRE, pose_for_view
 
 pytestmark = pytest.mark.gl
 
-SMALL = {
-    "name": "small",
-    "postures": {"named": ["open", "pinch"]},
-    "views": {"subdivisions": 0, "rolls": 3},
-    "images": {"sizes": [8, 16, 32], "render_size": 96},
-}
+SMALL = SMALL_DATABASE
 
 
 def small_config(**postures):
     return config_from_dict({**SMALL, "postures": {**SMALL["postures"], **postures}})
-
-
-@pytest.fixture(scope="module")
-def small_database(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("db") / "small.h5"
-    build_database(small_config(), path)
-    return path
 
 
 def test_round_trip(small_database):

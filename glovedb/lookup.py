@@ -1,0 +1,202 @@
+"""A posture database ready for searching: resident packed images plus mapped rows.
+
+:class:`DatabaseIndex` is the thin stateful edge around :mod:`glovedb.search`: it keeps
+the sizes that a cascade scans in full packed in memory (32 bytes per entry at 8x8),
+reads the larger sizes' rows straight from the file through a memory map (only the
+few candidates of the later stages are touched), and turns a query's tiny images into
+the nearest entries and their interpolated posture and rotation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+
+import numpy as np
+from numpy.typing import NDArray
+
+from glovedb.database import GloveDatabase
+from glovedb.search import (
+    CascadeStage,
+    InterpolatedPose,
+    PackedTinyImages,
+    SearchResult,
+    TinyImageSource,
+    cascade_search,
+    interpolate_pose,
+    pack_tiny_images,
+    parse_cascade,
+)
+
+DEFAULT_CASCADE = "8:2000,16:300,64:3"
+# The thesis' cascade (Figure 4.10), kept for comparison.
+THESIS_CASCADE = "16:500,64:3"
+
+
+@dataclass(frozen=True)
+class Lookup:
+    """Result of :meth:`DatabaseIndex.lookup`.
+
+    Attributes
+    ----------
+    search : SearchResult
+        Nearest entries and their matching errors.
+    pose : InterpolatedPose
+        Posture and rotation (``cam_R_hand`` of the database views) blended from them.
+    posture_ids : (k,) int64
+        Posture of each returned entry.
+    """
+
+    search: SearchResult
+    pose: InterpolatedPose
+    posture_ids: NDArray[np.int64]
+
+
+class DatabaseIndex:
+    """Search structures of one database file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A complete database (see :mod:`glovedb.database`).
+    resident_sizes : sequence of int, optional
+        Sizes packed into memory at once. By default the sizes up to 16; any other
+        size used as a cascade's first stage is packed on first use.
+    tile_to : int, optional
+        Benchmarks only: repeat the entries until there are this many, to measure
+        speed beyond the size that was built.
+
+    Attributes
+    ----------
+    entries : int
+        Searchable entries (``tile_to`` when tiling).
+    base_entries : int
+        Entries in the file.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        resident_sizes: tuple[int, ...] | None = None,
+        tile_to: int | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self._database = GloveDatabase(self.path)
+        base_entries = self._database.info().entries
+        self.entries = base_entries if tile_to is None else int(tile_to)
+        if self.entries < 1:
+            raise ValueError(f"tile_to: expected at least 1, got {tile_to}")
+        self.base_entries = base_entries
+        self.postures_rad = self._database.postures.astype(np.float64)
+        self._posture_ids = self._database.entry_posture_ids.astype(np.int64)
+        self._rotations = self._database.entry_rotations.astype(np.float64)
+        self.resolutions = self._database.resolutions
+        self._packed: dict[int, PackedTinyImages] = {}
+        self._rows: dict[int, NDArray[np.uint8]] = {}
+        wanted = resident_sizes if resident_sizes is not None else tuple(
+            s for s in self.resolutions if s <= 16
+        )  # fmt: skip
+        for size in wanted:
+            self.packed(size)
+
+    # Entries -------------------------------------------------------------------
+
+    def base_ids(self, entry_ids: NDArray[np.integer]) -> NDArray[np.int64]:
+        """Ids in the file of (possibly tiled) entry ids."""
+        return np.asarray(entry_ids, dtype=np.int64) % self.base_entries
+
+    def entry_postures(self, entry_ids: NDArray[np.integer]) -> NDArray[np.float64]:
+        """``(k, 20)`` postures of the entries, radians."""
+        return self.postures_rad[self._posture_ids[self.base_ids(entry_ids)]]
+
+    def entry_rotations(self, entry_ids: NDArray[np.integer]) -> NDArray[np.float64]:
+        """``(k, 3, 3)`` ``cam_R_hand`` of the entries."""
+        return self._rotations[self.base_ids(entry_ids)]
+
+    # Images --------------------------------------------------------------------
+
+    def packed(self, size: int) -> PackedTinyImages:
+        """Resident packed images of one size (packed on first use)."""
+        if size not in self._packed:
+            images = self._database.images(size)
+            if self.entries != self.base_entries:
+                images = np.resize(images, (self.entries, size, size))
+            self._packed[size] = pack_tiny_images(images)
+        return self._packed[size]
+
+    def rows(self, size: int, ids: NDArray[np.int64]) -> NDArray[np.uint8]:
+        """Images of the given entries, ``(len(ids), s, s) uint8``."""
+        base = self.base_ids(ids)
+        if size not in self._rows:
+            self._rows[size] = _mapped_images(self._database, size)
+        return np.asarray(self._rows[size][base])
+
+    def sources(self, stages: tuple[CascadeStage, ...]) -> dict[int, TinyImageSource]:
+        """What :func:`~glovedb.search.cascade_search` needs for these stages."""
+        sources: dict[int, TinyImageSource] = {}
+        for index, stage in enumerate(stages):
+            if index == 0 or stage.size in self._packed:
+                sources[stage.size] = self.packed(stage.size)
+            else:
+                sources[stage.size] = lambda ids, size=stage.size: self.rows(size, ids)
+        return sources
+
+    # Search --------------------------------------------------------------------
+
+    def search(
+        self,
+        query_images: dict[int, NDArray[np.uint8]],
+        cascade: str = DEFAULT_CASCADE,
+        *,
+        workers: int | None = None,
+    ) -> SearchResult:
+        """Cascaded nearest entries of a query (see :func:`glovedb.search.cascade_search`)."""
+        stages = parse_cascade(cascade, sizes=self.resolutions)
+        return cascade_search(query_images, self.sources(stages), stages, workers=workers)
+
+    def lookup(
+        self,
+        query_images: dict[int, NDArray[np.uint8]],
+        cascade: str = DEFAULT_CASCADE,
+        *,
+        workers: int | None = None,
+    ) -> Lookup:
+        """Nearest entries and their error-weighted posture and rotation."""
+        result = self.search(query_images, cascade, workers=workers)
+        pose = interpolate_pose(
+            result.errors,
+            self.entry_postures(result.entry_ids),
+            self.entry_rotations(result.entry_ids),
+        )
+        return Lookup(result, pose, self._posture_ids[self.base_ids(result.entry_ids)])
+
+    # Lifetime ------------------------------------------------------------------
+
+    def close(self) -> None:
+        self._rows.clear()
+        self._database.close()
+
+    def __enter__(self) -> DatabaseIndex:
+        return self
+
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        value: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def _mapped_images(database: GloveDatabase, size: int) -> NDArray[np.uint8]:
+    """``(N, s, s)`` images of a size as a read-only memory map when the dataset is
+    stored contiguously, else read into memory."""
+    dataset = database._dataset(size)
+    offset = dataset.id.get_offset()
+    if dataset.chunks is None and dataset.compression is None and offset is not None:
+        return np.memmap(
+            database.path, dtype=np.uint8, mode="r", offset=offset, shape=dataset.shape
+        )
+    return np.asarray(dataset[()])
