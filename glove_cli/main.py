@@ -17,14 +17,12 @@ from glove_cli.commands import (
     build,
     db,
     demo,
-    fingertips,
     pattern,
     render,
-    render_sequence,
 )
 from glovedb import __version__
 
-COMMANDS = (demo, render, pattern, build, db, bench, fingertips, render_sequence)
+COMMANDS = (demo, render, pattern, build, db, bench)
 # Errors that mean "the input or the request is wrong", not "the program is wrong".
 USER_ERRORS = (ValueError, TypeError, FileNotFoundError, IsADirectoryError, PermissionError)
 
