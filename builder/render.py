@@ -30,7 +30,7 @@ from glovedb._validate import as_array
 from glovedb.camera import CameraIntrinsics
 from glovedb.hand_model import N_JOINTS
 from glovedb.mesh import HandMesh, make_hand_mesh, pose_mesh, vertex_normals
-from glovedb.pattern import GlovePattern, face_labels, load_pattern
+from glovedb.pattern import GlovePattern, load_pattern, split_by_label
 
 # OpenGL camera axes expressed in the OpenCV camera frame.
 _CV_T_GL = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -183,13 +183,11 @@ class GloveRenderer:
         self.camera = camera
         self.mesh = mesh if mesh is not None else make_hand_mesh()
         self.pattern = pattern if pattern is not None else load_pattern()
-        labels = face_labels(self.mesh, self.pattern)
         # Split vertices on patch borders so every triangle's corners carry its color.
-        corner_keys = self.mesh.faces.astype(np.int64) * 16 + labels[:, None]
-        keys, inverse = np.unique(corner_keys.ravel(), return_inverse=True)
-        self._source_vertex = keys // 16
-        self._faces = inverse.reshape(-1, 3).astype(np.uint32)
-        vertex_label = (keys % 16).astype(np.uint8)
+        split = split_by_label(self.mesh, self.pattern)
+        self._source_vertex = split.source_vertex
+        self._faces = split.faces.astype(np.uint32)
+        vertex_label = split.labels
         self._label_colors = np.repeat(vertex_label[:, None] / 255.0, 3, axis=1)
         # pyrender's lit shader writes gamma-encoded output: hand it linear colors.
         palette = _srgb_to_linear(self.pattern.palette()[vertex_label] / 255.0)

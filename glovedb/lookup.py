@@ -9,6 +9,7 @@ the nearest entries and their interpolated posture and rotation.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -73,6 +74,8 @@ class DatabaseIndex:
         Searchable entries (``tile_to`` when tiling).
     base_entries : int
         Entries in the file.
+    hand_length_m : float
+        Size of the hand the database was rendered with.
     """
 
     def __init__(
@@ -93,6 +96,7 @@ class DatabaseIndex:
         self._posture_ids = self._database.entry_posture_ids.astype(np.int64)
         self._rotations = self._database.entry_rotations.astype(np.float64)
         self.resolutions = self._database.resolutions
+        self.hand_length_m = float(self._database.settings["config"]["hand_length_m"])
         self._packed: dict[int, PackedTinyImages] = {}
         self._rows: dict[int, NDArray[np.uint8]] = {}
         wanted = resident_sizes if resident_sizes is not None else tuple(
@@ -140,7 +144,7 @@ class DatabaseIndex:
             if index == 0 or stage.size in self._packed:
                 sources[stage.size] = self.packed(stage.size)
             else:
-                sources[stage.size] = lambda ids, size=stage.size: self.rows(size, ids)
+                sources[stage.size] = functools.partial(self.rows, stage.size)
         return sources
 
     # Search --------------------------------------------------------------------

@@ -161,6 +161,37 @@ def face_labels(mesh: HandMesh, pattern: GlovePattern) -> NDArray[np.uint8]:
     return labels[face_patches(mesh, pattern)]
 
 
+@dataclass(frozen=True)
+class LabeledVertices:
+    """The mesh with vertices split on patch borders, so every vertex has one class.
+
+    Attributes
+    ----------
+    source_vertex : (M,) int64
+        Mesh vertex each split vertex copies.
+    labels : (M,) uint8
+        Class 1..10 of each split vertex.
+    faces : (F, 3) int64
+        The mesh's triangles re-indexed into the split vertices.
+    """
+
+    source_vertex: NDArray[np.int64]
+    labels: NDArray[np.uint8]
+    faces: NDArray[np.int64]
+
+
+def split_by_label(mesh: HandMesh, pattern: GlovePattern) -> LabeledVertices:
+    """Split vertices where patches meet (a renderer colors vertices, not faces)."""
+    labels = face_labels(mesh, pattern).astype(np.int64)
+    corner_keys = mesh.faces.astype(np.int64) * 16 + labels[:, None]
+    keys, inverse = np.unique(corner_keys.ravel(), return_inverse=True)
+    return LabeledVertices(
+        source_vertex=keys // 16,
+        labels=(keys % 16).astype(np.uint8),
+        faces=inverse.reshape(-1, 3).astype(np.int64),
+    )
+
+
 def chroma_uv(rgb: NDArray) -> NDArray[np.float64]:
     """Brightness-normalised chroma of sRGB colors ``(..., 3)``: (U, V) of YUV divided by Y.
 

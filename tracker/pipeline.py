@@ -1,0 +1,335 @@
+"""The tracker: from one RGB-D frame to the hand's posture and 6D pose (thesis Fig. 4.3).
+
+Per frame:
+
+1. **classify** every pixel's color with the lookup table (:mod:`tracker.classify`);
+2. **segment** the hand's glove pixels and build the labeled point cloud
+   (:mod:`tracker.point_cloud`); too few glove pixels means "no hand";
+3. **look up** the tiny images of the hand's pixels in the database
+   (:class:`glovedb.lookup.DatabaseIndex`): posture ``theta`` and rotation ``R_db``
+   blended from the nearest entries. Database views look at the hand along the
+   optical axis; a hand seen off-axis is seen along the ray ``d`` through the
+   centre of its pixels, so the coarse rotation is ``R = R_ray @ R_db`` with
+   ``R_ray`` the smallest rotation taking +z to ``d``;
+4. **align**: pose the skinned model with ``theta``, place it at ``R`` with its
+   visible surface's centroid on the point cloud's centroid, and refine the rigid
+   pose with color-sensitive ICP (:mod:`tracker.icp`);
+5. **smooth** over the last frames (:class:`PoseSmoother`), and report keypoints,
+   fingertips, a confidence and per-stage timings.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from glovedb.camera import CameraIntrinsics
+from glovedb.hand_model import FINGERS, FINGERTIP_KEYPOINTS, forward_kinematics, make_skeleton
+from glovedb.lookup import DEFAULT_CASCADE, DatabaseIndex
+from glovedb.mesh import make_hand_mesh, pose_mesh, vertex_normals
+from glovedb.pattern import load_pattern, split_by_label
+from glovedb.rotations import axis_angle_to_matrix, geodesic_angle, weighted_rotation_average
+from glovedb.tiny_images import tiny_images_from_pixels
+from tracker.classify import ColorTable, nominal_table
+from tracker.frames import Frame
+from tracker.icp import color_icp
+from tracker.point_cloud import hand_region, labeled_point_cloud
+
+STAGES = ("classify", "segment", "lookup", "icp", "total")
+
+
+@dataclass(frozen=True)
+class TrackerSettings:
+    """How the tracker works; every field has a sensible default.
+
+    Attributes
+    ----------
+    cascade : str
+        Database lookup cascade (:func:`glovedb.search.parse_cascade`).
+    z_range_m : (float, float)
+        Working depth range; glove colors outside it are ignored.
+    min_glove_pixels : int
+        Fewer hand pixels than this means no hand.
+    icp_iterations : int
+    icp_stride : int
+        Use every n-th point of the cloud in ICP (thesis Figure 4.11).
+    icp_max_points : int
+        And at most this many.
+    smoothing_frames : int
+        Frames blended by the smoother (1 turns smoothing off).
+    mesh_spacing_m : float
+        Resolution of the model surface used by ICP.
+    workers : int or None
+        Search threads (None: all cores).
+    """
+
+    cascade: str = DEFAULT_CASCADE
+    z_range_m: tuple[float, float] = (0.2, 1.5)
+    min_glove_pixels: int = 150
+    icp_iterations: int = 25
+    icp_stride: int = 1
+    icp_max_points: int = 1500
+    smoothing_frames: int = 3
+    mesh_spacing_m: float = 0.003
+    workers: int | None = None
+
+
+@dataclass(frozen=True)
+class TrackingResult:
+    """What the tracker says about one frame (CONVENTIONS.md "Tracking output").
+
+    Pose fields are ``None`` when ``hand_found`` is false.
+    """
+
+    frame: int
+    hand_found: bool
+    posture_rad: NDArray[np.float64] | None = None
+    rotation: NDArray[np.float64] | None = None
+    translation_m: NDArray[np.float64] | None = None
+    keypoints_3d_m: NDArray[np.float64] | None = None
+    keypoints_2d_px: NDArray[np.float64] | None = None
+    fingertips: tuple[dict[str, Any], ...] = ()
+    confidence: float = 0.0
+    timing_ms: dict[str, float] = field(default_factory=dict)
+
+    def as_record(self) -> dict[str, Any]:
+        """The ``poses.jsonl`` object of this frame."""
+        record: dict[str, Any] = {"frame": self.frame, "hand_found": self.hand_found}
+        if self.hand_found:
+            assert self.posture_rad is not None and self.rotation is not None
+            assert self.translation_m is not None and self.keypoints_3d_m is not None
+            assert self.keypoints_2d_px is not None
+            record.update(
+                posture_rad=_rounded(self.posture_rad, 6),
+                rotation=_rounded(self.rotation, 6),
+                translation_m=_rounded(self.translation_m, 5),
+                keypoints_3d_m=_rounded(self.keypoints_3d_m, 5),
+                keypoints_2d_px=_rounded(self.keypoints_2d_px, 2),
+                fingertips=list(self.fingertips),
+                confidence=round(self.confidence, 4),
+            )
+        record["timing_ms"] = {k: round(v, 3) for k, v in self.timing_ms.items()}
+        return record
+
+
+class PoseSmoother:
+    """Blends the last ``frames`` estimates, but follows fast motion at once.
+
+    The output is a weighted mean (weights 3:2:1 for the newest three) of posture,
+    translation and rotation. When the newest estimate is far from the previous
+    output (a jump: more than 20 degrees of rotation, 4 cm of translation or 15
+    degrees of mean joint angle), the history restarts from it, so fast motions are
+    not dragged behind.
+    """
+
+    def __init__(self, frames: int = 3) -> None:
+        self.frames = frames
+        self._history: deque[tuple[NDArray, NDArray, NDArray]] = deque(maxlen=max(frames, 1))
+
+    def reset(self) -> None:
+        self._history.clear()
+
+    def __call__(
+        self, posture: NDArray, rotation: NDArray, translation: NDArray
+    ) -> tuple[NDArray, NDArray, NDArray]:
+        if self._history:
+            last_posture, last_rotation, last_translation = self._history[-1]
+            jump = (
+                geodesic_angle(last_rotation, rotation) > np.radians(20)
+                or np.linalg.norm(last_translation - translation) > 0.04
+                or np.mean(np.abs(last_posture - posture)) > np.radians(15)
+            )
+            if jump:
+                self._history.clear()
+        self._history.append((posture, rotation, translation))
+        weights = np.arange(1, len(self._history) + 1, dtype=np.float64)
+        weights /= weights.sum()
+        postures, rotations, translations = (np.array(x) for x in zip(*self._history, strict=True))
+        return (
+            weights @ postures,
+            weighted_rotation_average(rotations, weights),
+            weights @ translations,
+        )
+
+
+class Tracker:
+    """Tracks the glove hand frame after frame with one posture database.
+
+    Parameters
+    ----------
+    database : str or Path
+        A posture database file.
+    settings : TrackerSettings, optional
+    color_table : ColorTable, optional
+        Defaults to the table from the glove pattern's nominal colors.
+    """
+
+    def __init__(
+        self,
+        database: str | Path,
+        *,
+        settings: TrackerSettings | None = None,
+        color_table: ColorTable | None = None,
+    ) -> None:
+        self.settings = settings or TrackerSettings()
+        self.index = DatabaseIndex(database)
+        hand_length = self.index.hand_length_m
+        pattern = load_pattern()
+        self.color_table = color_table or nominal_table(pattern)
+        self.skeleton = make_skeleton(hand_length)
+        self.mesh = make_hand_mesh(self.skeleton, spacing_m=self.settings.mesh_spacing_m)
+        split = split_by_label(self.mesh, pattern)
+        self._model_vertex = split.source_vertex
+        self._model_labels = split.labels
+        self._smoother = PoseSmoother(self.settings.smoothing_frames)
+        self._sizes = self.index.resolutions
+
+    def track(self, frame: Frame) -> TrackingResult:
+        """Estimate the hand in one frame (see the module docstring)."""
+        timing: dict[str, float] = {}
+        started = clock = time.perf_counter()
+
+        def lap(stage: str) -> None:
+            nonlocal clock
+            now = time.perf_counter()
+            timing[stage] = (now - clock) * 1000.0
+            clock = now
+
+        labels = self.color_table.classify(frame.color)
+        lap("classify")
+        region = hand_region(labels, frame.depth_m, z_range_m=self.settings.z_range_m)
+        cloud = labeled_point_cloud(region, frame.intrinsics)
+        lap("segment")
+        if len(region) < self.settings.min_glove_pixels or len(cloud) < 30:
+            return self._not_found(frame, timing, started)
+
+        stacks = tiny_images_from_pixels(
+            region.pixels_uv.astype(np.float64), region.labels, self._sizes
+        )
+        query = {size: stack[0] for size, stack in stacks.items()}
+        lookup = self.index.lookup(query, self.settings.cascade, workers=self.settings.workers)
+        lap("lookup")
+        if not lookup.pose.valid:
+            return self._not_found(frame, timing, started)
+
+        posture = lookup.pose.posture_rad
+        centre_px = region.pixels_uv.mean(axis=0)
+        rotation = _ray_rotation(frame.intrinsics, centre_px) @ lookup.pose.rotation
+        surface = pose_mesh(self.mesh, posture)
+        normals = vertex_normals(surface, self.mesh.faces)
+        model, model_normals = surface[self._model_vertex], normals[self._model_vertex]
+        translation = self._initial_translation(cloud.points_m, model, model_normals, rotation)
+        points = cloud.subsample(self.settings.icp_stride)
+        step = max(1, len(points) // self.settings.icp_max_points)
+        icp = color_icp(
+            points.points_m[::step],
+            points.labels[::step],
+            model,
+            model_normals,
+            self._model_labels,
+            rotation,
+            translation,
+            iterations=self.settings.icp_iterations,
+        )
+        lap("icp")
+        posture, rotation, translation = self._smoother(posture, icp.rotation, icp.translation_m)
+        result = self._result(frame, posture, rotation, translation, lookup.search.errors[0], icp)
+        timing["total"] = (time.perf_counter() - started) * 1000.0
+        return TrackingResult(**{**result, "timing_ms": timing})
+
+    def _initial_translation(
+        self,
+        cloud_m: NDArray[np.float32],
+        model: NDArray[np.float64],
+        normals: NDArray[np.float64],
+        rotation: NDArray[np.float64],
+    ) -> NDArray[np.float64]:
+        """Put the centroid of the model's visible side on the cloud's centroid."""
+        centroid = cloud_m.mean(axis=0).astype(np.float64)
+        viewing = centroid / np.linalg.norm(centroid)
+        facing = (normals @ rotation.T) @ viewing < 0
+        visible = model[facing] if facing.any() else model
+        return centroid - rotation @ visible.mean(axis=0)
+
+    def _result(
+        self,
+        frame: Frame,
+        posture: NDArray[np.float64],
+        rotation: NDArray[np.float64],
+        translation: NDArray[np.float64],
+        lookup_error_px: float,
+        icp: Any,
+    ) -> dict[str, Any]:
+        keypoints = (
+            forward_kinematics(posture, self.skeleton).keypoints_m[0] @ rotation.T + translation
+        )
+        pixels = frame.intrinsics.project(keypoints)
+        # Confidence: a good lookup (under a pixel at the last stage) and a tight,
+        # well-supported fit (millimetres, most points kept).
+        confidence = float(
+            np.exp(-float(lookup_error_px) / 2.0)
+            * np.exp(-icp.cost_m / 0.01)
+            * min(1.0, icp.inlier_fraction / 0.8)
+        )
+        fingertips = tuple(
+            {
+                "finger": finger,
+                "u_px": round(float(pixels[tip, 0]), 2),
+                "v_px": round(float(pixels[tip, 1]), 2),
+                "x_m": round(float(keypoints[tip, 0]), 5),
+                "y_m": round(float(keypoints[tip, 1]), 5),
+                "z_m": round(float(keypoints[tip, 2]), 5),
+                "confidence": round(confidence, 4),
+            }
+            for finger, tip in zip(FINGERS, FINGERTIP_KEYPOINTS, strict=True)
+        )
+        return {
+            "frame": frame.index,
+            "hand_found": True,
+            "posture_rad": posture,
+            "rotation": rotation,
+            "translation_m": translation,
+            "keypoints_3d_m": keypoints,
+            "keypoints_2d_px": pixels,
+            "fingertips": fingertips,
+            "confidence": confidence,
+        }
+
+    def _not_found(self, frame: Frame, timing: dict[str, float], started: float) -> TrackingResult:
+        self._smoother.reset()
+        timing["total"] = (time.perf_counter() - started) * 1000.0
+        return TrackingResult(frame=frame.index, hand_found=False, timing_ms=timing)
+
+    def close(self) -> None:
+        self.index.close()
+
+    def __enter__(self) -> Tracker:
+        return self
+
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        value: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def _ray_rotation(intrinsics: CameraIntrinsics, pixel: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Smallest rotation taking the optical axis (+z) to the ray through ``pixel``."""
+    ray = intrinsics.back_project(pixel, 1.0)
+    ray /= np.linalg.norm(ray)
+    axis = np.cross([0.0, 0.0, 1.0], ray)
+    angle = np.arccos(np.clip(ray[2], -1.0, 1.0))
+    return axis_angle_to_matrix(axis, angle)
+
+
+def _rounded(array: NDArray, digits: int) -> list:
+    return np.round(np.asarray(array, dtype=np.float64), digits).tolist()
