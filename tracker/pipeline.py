@@ -75,7 +75,7 @@ class TrackerSettings:
     min_glove_pixels: int = 150
     icp_iterations: int = 25
     icp_stride: int = 1
-    icp_max_points: int = 1500
+    icp_max_points: int = 500
     smoothing_frames: int = 3
     mesh_spacing_m: float = 0.003
     workers: int | None = None
