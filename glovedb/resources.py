@@ -25,3 +25,15 @@ def config_path(relative: str) -> Path:
         if candidate.is_file():
             return candidate
     raise FileNotFoundError(f"configs/{relative} not found in {_PACKAGED} or {_CHECKOUT}")
+
+
+def config_files(folder: str, suffix: str) -> list[Path]:
+    """Files ending in ``suffix`` under ``configs/<folder>``, packaged copy first,
+    one per name, sorted by name."""
+    found: dict[str, Path] = {}
+    for root in (_PACKAGED, _CHECKOUT):
+        directory = root / folder
+        if directory.is_dir():
+            for path in sorted(directory.glob(f"*{suffix}")):
+                found.setdefault(path.name, path)
+    return [found[name] for name in sorted(found)]

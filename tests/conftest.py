@@ -37,3 +37,15 @@ def small_database(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("db") / "small.h5"
     build_database(config_from_dict(SMALL_DATABASE), path)
     return path
+
+
+@pytest.fixture(scope="session")
+def open_pinch_power_database(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The thesis' DB_open+pinch+power (2,268 entries), built once per session."""
+    from builder.build import build_database
+    from builder.config import load_config
+    from glovedb.resources import config_path
+
+    path = tmp_path_factory.mktemp("db") / "open_pinch_power.h5"
+    build_database(load_config(config_path("db/open_pinch_power.toml")), path)
+    return path

@@ -1,0 +1,180 @@
+"""Tracker core: color table, point cloud, ICP, the whole pipeline on rendered frames."""
+
+import numpy as np
+import pytest
+
+from glovedb.camera import KINECT_V1, CameraIntrinsics
+from glovedb.hand_model import make_skeleton
+from glovedb.mesh import pose_mesh, vertex_normals
+from glovedb.pattern import load_pattern, split_by_label
+from glovedb.postures import named_posture
+from glovedb.rotations import axis_angle_to_matrix, geodesic_angle
+from tracker.classify import calibrated_table, load_table, nominal_table
+from tracker.frames import Frame
+from tracker.icp import color_icp, rigid_fit
+from tracker.point_cloud import hand_region, labeled_point_cloud
+
+
+@pytest.fixture(scope="module")
+def pattern():
+    return load_pattern()
+
+
+def test_nominal_table_classifies_glove_colors_under_lighting_changes(pattern):
+    table = nominal_table(pattern)
+    assert table.table.shape == (32, 32, 32) and table.table.dtype == np.uint8
+    expected = np.arange(1, 11, dtype=np.uint8)[None]
+    for gain, balance in [(1.0, (1, 1, 1)), (0.45, (1, 1, 1)), (1.25, (1, 1, 1)),
+                          (0.8, (1.12, 1.0, 0.88)), (0.9, (0.9, 1.0, 1.1))]:  # fmt: skip
+        lit = np.clip(pattern.colors_rgb[None] * gain * np.array(balance), 0, 255)
+        np.testing.assert_array_equal(table.classify(lit.astype(np.uint8)), expected)
+    greys = np.array([[[0, 0, 0], [60, 60, 60], [128, 128, 128], [250, 250, 250]]], np.uint8)
+    np.testing.assert_array_equal(table.classify(greys), 0)
+
+
+@pytest.mark.gl
+def test_nominal_table_on_rendered_shading(renderer, pattern):
+    rotation, translation = axis_angle_to_matrix([1.0, 0.2, 0.0], 2.6), np.array([0, 0.05, 0.5])
+    rendering = renderer.render(named_posture("power"), rotation, translation)
+    labels = nominal_table(pattern).classify(rendering.color)
+    glove = rendering.labels > 0
+    assert np.mean(labels[glove] == rendering.labels[glove]) > 0.97
+    assert np.mean(labels[~glove] == 0) > 0.999
+
+
+def test_calibrated_table_learns_a_shifted_glove_and_round_trips(pattern, tmp_path):
+    rng = np.random.default_rng(0)
+    # A real glove's dye: every color darker and warmer than nominal, sampled noisily.
+    real = np.clip(pattern.colors_rgb * 0.7 * np.array([1.1, 0.95, 0.85]), 0, 255)
+    glove = np.repeat(real, 50, axis=0) + rng.normal(0, 4, (500, 3))
+    background = rng.integers(0, 256, (2000, 3)) * np.array([1, 1, 1])
+    background = background[np.ptp(background, axis=1) < 40]  # greyish clutter
+    colors = np.clip(np.concatenate([glove, background]), 0, 255).astype(np.uint8)
+    labels = np.concatenate([np.repeat(np.arange(1, 11), 50), np.zeros(len(background), int)])
+    table = calibrated_table(colors, labels)
+    np.testing.assert_array_equal(table.classify(real[None].astype(np.uint8)), [list(range(1, 11))])
+    path = tmp_path / "table.npz"
+    table.save(path)
+    np.testing.assert_array_equal(load_table(path).table, table.table)
+    (tmp_path / "bad.npz").write_bytes(b"nope")
+    with pytest.raises(ValueError, match="not a color table"):
+        load_table(tmp_path / "bad.npz")
+
+
+def test_point_cloud_of_a_plane_at_known_depth():
+    camera = CameraIntrinsics(80, 60, 70.0, 70.0, 39.5, 29.5)
+    labels = np.zeros((60, 80), np.uint8)
+    labels[20:40, 30:50] = 4
+    depth = np.full((60, 80), 0.8, np.float32)
+    depth[25, 35] = 0.0  # a hole: no point there
+    region = hand_region(labels, depth)
+    assert len(region) == 400
+    cloud = labeled_point_cloud(region, camera)
+    assert len(cloud) == 399 and cloud.points_m.dtype == np.float32
+    np.testing.assert_allclose(cloud.points_m[:, 2], 0.8, atol=1e-6)
+    # The patch spans pixels 30..49: x from (30 - 39.5) to (49 - 39.5) times 0.8 / 70.
+    np.testing.assert_allclose(cloud.points_m[:, 0].min(), -9.5 * 0.8 / 70, atol=1e-6)
+    np.testing.assert_allclose(cloud.points_m[:, 0].max(), 9.5 * 0.8 / 70, atol=1e-6)
+    assert np.all(cloud.labels == 4)
+
+
+def test_hand_region_drops_far_and_small_glove_colored_things():
+    labels = np.zeros((100, 100), np.uint8)
+    depth = np.full((100, 100), 0.6, np.float32)
+    labels[30:60, 30:60] = 2  # the hand
+    labels[5:8, 90:93] = 5  # a speck far from it
+    labels[80:95, 5:20] = 3  # a glove-colored poster on the wall
+    depth[80:95, 5:20] = 2.5
+    region = hand_region(labels, depth, z_range_m=(0.2, 1.5))
+    assert len(region) == 900 and set(region.labels) == {2}
+    empty = hand_region(np.zeros((10, 10), np.uint8), np.zeros((10, 10), np.float32))
+    assert len(empty) == 0
+
+
+def test_rigid_fit_recovers_a_transform():
+    rng = np.random.default_rng(1)
+    points = rng.normal(size=(50, 3))
+    rotation = axis_angle_to_matrix([0.3, -0.5, 0.8], 0.7)
+    fitted_rotation, fitted_translation = rigid_fit(points, points @ rotation.T + [0.1, -0.2, 0.5])
+    np.testing.assert_allclose(fitted_rotation, rotation, atol=1e-12)
+    np.testing.assert_allclose(fitted_translation, [0.1, -0.2, 0.5], atol=1e-12)
+
+
+@pytest.mark.gl
+def test_icp_recovers_a_rigid_perturbation_of_a_rendered_hand(renderer, pattern):
+    skeleton = make_skeleton()
+    mesh = renderer.mesh
+    posture = named_posture("pinch")
+    rotation = axis_angle_to_matrix([0.4, 1.0, 0.2], 2.2)
+    translation = np.array([0.03, -0.02, 0.55])
+    rendering = renderer.render_labels(posture, rotation, translation)
+    region = hand_region(rendering.labels, rendering.depth_m)
+    cloud = labeled_point_cloud(region, renderer.camera)
+    split = split_by_label(mesh, pattern)
+    surface = pose_mesh(mesh, posture)
+    normals = vertex_normals(surface, mesh.faces)
+    start_rotation = axis_angle_to_matrix([1.0, -0.4, 0.3], np.radians(6)) @ rotation
+    start_translation = translation + [0.008, -0.006, 0.01]
+    result = color_icp(
+        cloud.points_m[::4], cloud.labels[::4],
+        surface[split.source_vertex], normals[split.source_vertex], split.labels,
+        start_rotation, start_translation, iterations=40,
+    )  # fmt: skip
+    assert np.degrees(geodesic_angle(result.rotation, rotation)) < 0.5
+    assert np.linalg.norm(result.translation_m - translation) < 0.001
+    assert result.cost_m < 0.001 and result.inlier_fraction > 0.9
+    assert skeleton.hand_length_m == mesh.skeleton.hand_length_m
+
+
+@pytest.mark.gl
+def test_tracker_finds_rendered_hands_and_reports_no_hand_without_glove(small_database, renderer):
+    from tracker.pipeline import Tracker, TrackerSettings
+
+    settings = TrackerSettings(cascade="8:30,16:10,32:3", smoothing_frames=1)
+    rng = np.random.default_rng(3)
+    with Tracker(small_database, settings=settings) as tracker:
+        errors = []
+        for index, name in enumerate(["open", "pinch", "open", "pinch"]):
+            rotation = axis_angle_to_matrix(rng.normal(size=3), rng.uniform(0, np.pi))
+            translation = np.array([rng.uniform(-0.05, 0.05), rng.uniform(-0.05, 0.05), 0.6])
+            rendering = renderer.render(named_posture(name), rotation, translation)
+            frame = Frame(index, rendering.color, rendering.depth_m, KINECT_V1)
+            result = tracker.track(frame)
+            assert result.hand_found
+            errors.append((np.degrees(geodesic_angle(result.rotation, rotation)),
+                           np.linalg.norm(result.translation_m - translation)))  # fmt: skip
+            record = result.as_record()
+            assert len(record["keypoints_2d_px"]) == 21 and len(record["fingertips"]) == 5
+            assert 0 <= record["confidence"] <= 1 and record["timing_ms"]["total"] > 0
+        # A 36-view database gives coarse starts; the fit still lands near the truth.
+        assert np.median([e[0] for e in errors]) < 15 and np.median([e[1] for e in errors]) < 0.02
+        bare = Frame(9, np.full((480, 640, 3), 90, np.uint8), np.full((480, 640), 0.7, np.float32),
+                     KINECT_V1)  # fmt: skip
+        empty_depth = Frame(10, rendering.color, np.zeros((480, 640), np.float32), KINECT_V1)
+        for frame in (bare, empty_depth):
+            result = tracker.track(frame)
+            assert not result.hand_found
+            assert result.as_record() == {"frame": frame.index, "hand_found": False,
+                                          "timing_ms": result.as_record()["timing_ms"]}  # fmt: skip
+
+
+@pytest.mark.gl
+def test_icp_converges_from_the_lookup_of_a_thesis_database(open_pinch_power_database, renderer):
+    from tracker.pipeline import Tracker, TrackerSettings
+
+    rng = np.random.default_rng(11)
+    rotation_errors, position_errors = [], []
+    with Tracker(
+        open_pinch_power_database, settings=TrackerSettings(smoothing_frames=1)
+    ) as tracker:
+        for index in range(12):
+            name = ("open", "pinch", "power")[index % 3]
+            rotation = axis_angle_to_matrix(rng.normal(size=3), rng.uniform(0, np.pi))
+            translation = np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.08, 0.08),
+                                    rng.uniform(0.5, 0.8)])  # fmt: skip
+            rendering = renderer.render(named_posture(name), rotation, translation)
+            result = tracker.track(Frame(index, rendering.color, rendering.depth_m, KINECT_V1))
+            assert result.hand_found
+            rotation_errors.append(np.degrees(geodesic_angle(result.rotation, rotation)))
+            position_errors.append(np.linalg.norm(result.translation_m - translation))
+    assert np.median(rotation_errors) < 1.0 and np.median(position_errors) < 0.002
