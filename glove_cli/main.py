@@ -17,12 +17,14 @@ from glove_cli.commands import (
     build,
     db,
     demo,
+    evaluate,
     pattern,
     render,
+    track,
 )
 from glovedb import __version__
 
-COMMANDS = (demo, render, pattern, build, db, bench)
+COMMANDS = (demo, render, pattern, build, db, bench, track, evaluate)
 # Errors that mean "the input or the request is wrong", not "the program is wrong".
 USER_ERRORS = (ValueError, TypeError, FileNotFoundError, IsADirectoryError, PermissionError)
 

@@ -1,0 +1,77 @@
+"""``glove eval``: track a synthetic sequence and score it against its ground truth."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from glove_cli.commands.track import add_tracker_options, make_tracker, progress_bar
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "eval",
+        help="track a sequence with ground truth and score it",
+        description="Track an RGB-D folder that has groundtruth.jsonl and report posture, "
+        "rotation, position and keypoint errors, missed frames, fps and stage timings. "
+        "Per-frame errors (CSV), an error plot and the tracking outputs go to --out.",
+    )
+    parser.add_argument("--db", required=True, help="posture database (.h5)")
+    parser.add_argument("--sequence", required=True, help="RGB-D folder with groundtruth.jsonl")
+    parser.add_argument("--out", help="output folder (default: SEQUENCE/eval)")
+    add_tracker_options(parser)
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+
+    from tracker.evaluation import (
+        error_plot,
+        evaluate,
+        keyframe_indices,
+        read_thumbnails,
+        save_error_plot,
+        write_errors_csv,
+    )
+    from tracker.run import POSES_FILE, track_source
+    from tracker.sources import open_source
+
+    sequence = Path(args.sequence)
+    truth = sequence / "groundtruth.jsonl"
+    if not truth.is_file():
+        raise ValueError(f"{sequence}: no groundtruth.jsonl (not a synthetic sequence)")
+    out = Path(args.out) if args.out else sequence / "eval"
+    source = open_source(sequence)
+    with make_tracker(args) as tracker:
+        summary = track_source(source, tracker, out, bvh=False, progress=progress_bar("evaluating"))
+    result = evaluate(out / POSES_FILE, truth)
+    write_errors_csv(result.per_frame, out / "errors.csv")
+    fps = source.fps or 30.0
+    keyframes = keyframe_indices(len(result.per_frame.frames), 6)
+    picture = error_plot(
+        result.per_frame, fps=fps, thumbnails=read_thumbnails(sequence, keyframes),
+        title=f"{sequence.name} with {Path(args.db).name}",
+    )  # fmt: skip
+    save_error_plot(out / "errors.png", picture)
+    figures = {**result.as_dict(), "fps": round(summary.fps, 2),
+               "timing_ms": summary.timing.as_dict(), "outputs": str(out)}  # fmt: skip
+    if args.json:
+        print(json.dumps(figures))
+        return 0
+    print(f"{sequence}: {result.frames} frames, {result.missed_frames} missed, "
+          f"{summary.fps:.1f} frames/s")  # fmt: skip
+    for name in (
+        "posture_error_deg",
+        "rotation_error_deg",
+        "position_error_mm",
+        "keypoint_error_px",
+    ):
+        stats = figures[name]
+        if stats["mean"] is None:
+            continue
+        mean, median, worst = stats["mean"], stats["median"], stats["max"]
+        print(f"  {name:20s} mean {mean:7.2f}  median {median:7.2f}  max {worst:7.2f}")
+    print(f"  outputs in {out}")
+    return 0
