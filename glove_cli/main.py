@@ -20,11 +20,12 @@ from glove_cli.commands import (
     evaluate,
     pattern,
     render,
+    render_sequence,
     track,
 )
 from glovedb import __version__
 
-COMMANDS = (demo, render, pattern, build, db, bench, track, evaluate)
+COMMANDS = (demo, render, pattern, build, db, bench, track, evaluate, render_sequence)
 # Errors that mean "the input or the request is wrong", not "the program is wrong".
 USER_ERRORS = (ValueError, TypeError, FileNotFoundError, IsADirectoryError, PermissionError)
 

@@ -65,6 +65,31 @@ class CameraIntrinsics:
             cy=(self.cy + 0.5) * factor - 0.5,
         )
 
+    def plane_depth(
+        self, normal: ArrayLike, point_m: ArrayLike, *, max_depth_m: float = 5.0
+    ) -> NDArray[np.float32]:
+        """Depth image ``(H, W) float32`` of an infinite plane seen by this camera.
+
+        Parameters
+        ----------
+        normal : (3,) float
+            Plane normal, camera frame.
+        point_m : (3,) float
+            A point of the plane, camera frame, metres.
+        max_depth_m : float
+            Farther plane points, and points behind the camera, read 0.
+        """
+        n = as_array("normal", normal, (3,), np.float64, finite=True)
+        p = as_array("point_m", point_m, (3,), np.float64, finite=True)
+        v, u = np.indices((self.height, self.width), dtype=np.float64)
+        # The ray through (u, v) is z * ((u - cx) / fx, (v - cy) / fy, 1); it meets the
+        # plane n . x = n . p at z = (n . p) / (n . ray(z = 1)).
+        facing = n[0] * (u - self.cx) / self.fx + n[1] * (v - self.cy) / self.fy + n[2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            depth = np.where(np.abs(facing) > 1e-9, (n @ p) / facing, 0.0)
+        depth[(depth <= 0) | (depth > max_depth_m) | ~np.isfinite(depth)] = 0.0
+        return depth.astype(np.float32)
+
     def to_open3d_json(self) -> dict:
         """The Open3D ``PinholeCameraIntrinsic`` JSON object (column-major matrix)."""
         return {

@@ -1,60 +1,141 @@
-"""``glove demo``: the main job on embedded defaults.
+"""``glove demo``: the main job on embedded defaults, start to finish.
 
-Until the tracker exists this renders every named posture from the back and the palm
-side and writes a contact sheet plus the glove pattern, then says what it made.
+1. build the thesis database DB_open+pinch+power (or reuse it from the cache);
+2. render a synthetic pinch-grasp sequence (trajectory tr1) with Kinect-like depth
+   and color noise;
+3. track it and score it against its ground truth;
+4. print our errors next to the thesis' (Figure 4.6) and write the overlay video,
+   the error plot and the per-frame errors.
 """
 
 from __future__ import annotations
 
 import argparse
-import time
+import hashlib
+import json
+import os
 from pathlib import Path
+
+# Thesis Figure 4.6 (DB_open+pinch+power on Tr1-Tr5, 4 cores, about 15 Hz): ranges of
+# the per-trajectory mean errors.
+THESIS = {
+    "posture_error_deg": (2.2, 4.9),
+    "rotation_error_deg": (3.0, 5.6),
+    "position_error_mm": (4.0, 6.0),
+}
+THESIS_FPS = 15.0
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "demo",
         help="run the main job on embedded defaults",
-        description="Render every named posture of the glove hand and the glove pattern "
-        "into a folder, and print what was made.",
+        description="Build (or reuse) the open+pinch+power database, render a noisy "
+        "synthetic pinch sequence, track it, and compare the errors with the thesis.",
     )
     parser.add_argument("--out", default="glove_demo", help="output folder (default: %(default)s)")
+    parser.add_argument("--frames", type=int, default=120, help="frames of the sequence (30 fps)")
+    parser.add_argument("--trajectory", default="tr1", help="trajectory name or file")
+    parser.add_argument(
+        "--cache", default=None, help="where the database is kept (default: ~/.cache/glove)"
+    )
     parser.set_defaults(run=run)
 
 
+def database_cache(cache: str | None) -> Path:
+    """The cache folder: ``--cache``, else ``$XDG_CACHE_HOME/glove``, else ``~/.cache/glove``."""
+    if cache:
+        return Path(cache)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "glove"
+
+
+def cached_database(cache: Path, workers: int) -> Path:
+    """The open+pinch+power database, built into the cache unless an identical build is
+    there (the file name carries a hash of the settings and project version)."""
+    from builder.build import build_database, stored_settings
+    from builder.config import load_config
+    from glovedb.resources import config_path
+
+    config = load_config(config_path("db/open_pinch_power.toml"))
+    digest = hashlib.sha256(
+        json.dumps(stored_settings(config), sort_keys=True).encode()
+    ).hexdigest()
+    path = cache / f"open_pinch_power-{digest[:12]}.h5"
+    if path.exists():
+        print(f"database: reusing {path}")
+        return path
+    cache.mkdir(parents=True, exist_ok=True)
+    print(f"database: building {config.name} into {path}")
+    report = build_database(
+        config, path, workers=workers, resume=path.with_name(path.name + ".parts").exists()
+    )
+    print(f"  {report.entries:,} entries in {report.seconds:.1f} s")
+    return path
+
+
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-    from tqdm import tqdm
+    import shutil
 
-    from builder.figures import caption, grid, pattern_sheet, save_rgb
-    from builder.render import GloveRenderer
-    from glovedb.camera import KINECT_V1
-    from glovedb.postures import load_named_postures
-    from glovedb.views import named_view
+    from builder.sequence import SequenceSettings, render_sequence
+    from glove_cli.commands.track import progress_bar
+    from tracker.evaluation import (
+        error_plot,
+        evaluate,
+        keyframe_indices,
+        read_thumbnails,
+        save_error_plot,
+        write_errors_csv,
+    )
+    from tracker.pipeline import Tracker
+    from tracker.run import POSES_FILE, track_source
+    from tracker.sources import open_source
 
+    if args.frames < 1:
+        raise ValueError("--frames must be at least 1")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    started = time.perf_counter()
-    postures = load_named_postures()
-    tiles = []
-    with GloveRenderer(KINECT_V1) as renderer:
-        hand_length = renderer.mesh.skeleton.hand_length_m
-        for name, posture in tqdm(postures.items(), desc="rendering postures", unit="posture"):
-            for view in ("back", "palm", "thumb"):
-                rotation, translation = named_view(view, 0.4, hand_length)
-                rendering = renderer.render(posture, rotation, translation)
-                tiles.append(caption(rendering.color, f"{name} ({view})"))
-                labels = renderer.pattern.colorize(rendering.labels)
-                tiles.append(caption(labels, "labels"))
-        sheet = grid([tile[60:420, 140:500] for tile in tiles], columns=6)
-        save_rgb(out / "postures.png", sheet)
-        save_rgb(out / "pattern.png", pattern_sheet(renderer))
-    elapsed = time.perf_counter() - started
-    print(f"rendered {len(postures)} named postures x 3 views in {elapsed:.1f} s")
-    print(f"  {out / 'postures.png'}: color and label images ({sheet.shape[1]}x{sheet.shape[0]})")
-    print(f"  {out / 'pattern.png'}: the glove pattern, back and palm, with its legend")
-    print(f"  postures: {', '.join(postures)}")
+    database = cached_database(database_cache(args.cache), os.cpu_count() or 1)
+
+    sequence = out / "sequence"
+    if sequence.exists():
+        shutil.rmtree(sequence)
+    settings = SequenceSettings(
+        trajectory=args.trajectory, frames=args.frames, noise="kinect_v1", background="plain"
+    )
+    print(f"sequence: rendering {args.frames} frames of {args.trajectory} with Kinect noise")
+    render_sequence(settings, sequence, progress=progress_bar("rendering"))
+
+    tracking = out / "tracking"
+    with Tracker(database) as tracker:
+        summary = track_source(
+            open_source(sequence), tracker, tracking, progress=progress_bar("tracking")
+        )
+    result = evaluate(tracking / POSES_FILE, sequence / "groundtruth.jsonl")
+    write_errors_csv(result.per_frame, out / "errors.csv")
+    keyframes = keyframe_indices(len(result.per_frame.frames), 6)
+    picture = error_plot(
+        result.per_frame, fps=30.0, thumbnails=read_thumbnails(sequence, keyframes),
+        title=f"{args.trajectory}, DB_open+pinch+power",
+    )  # fmt: skip
+    save_error_plot(out / "errors.png", picture)
+
+    figures = result.as_dict()
+    print()
+    print(f"{result.frames} frames, hand found in {summary.found}, {result.missed_frames} missed")
+    print(f"{'':22s}{'ours (mean)':>14s}{'ours (median)':>15s}{'thesis (Fig. 4.6)':>20s}")
+    for name, (low, high) in THESIS.items():
+        stats = figures[name]
+        mean = "-" if stats["mean"] is None else f"{stats['mean']:.2f}"
+        median = "-" if stats["median"] is None else f"{stats['median']:.2f}"
+        print(f"{name:22s}{mean:>14s}{median:>15s}{f'{low:g}-{high:g}':>20s}")
     print(
-        f"  mean glove pixels per view: {np.mean([t.any(axis=2).sum() for t in tiles[1::2]]):.0f}"
+        f"{'frames per second':22s}{summary.fps:>14.1f}{'':>15s}{f'{THESIS_FPS:g} (4 cores)':>20s}"
+    )
+    print()
+    print(summary.timing.table())
+    print(f"outputs: {out}/errors.png, {out}/errors.csv, {tracking}/ (poses.jsonl, overlay, BVH)")
+    (out / "summary.json").write_text(
+        json.dumps({**figures, "fps": summary.fps, "timing_ms": summary.timing.as_dict()}, indent=1)
     )
     return 0

@@ -245,8 +245,9 @@ def test_weighted_rotation_average_rejects_bad_weights() -> None:
 def test_interpolate_pose_weights_by_inverse_error() -> None:
     postures = np.stack([np.zeros(20), np.ones(20), np.full(20, 5.0)])
     rotations = np.stack([np.eye(3), np.eye(3), np.eye(3)])
-    pose = interpolate_pose(np.array([1.0, 3.0, np.inf], np.float32), postures, rotations,
-                            epsilon_px=1.0)
+    pose = interpolate_pose(
+        np.array([1.0, 3.0, np.inf], np.float32), postures, rotations, epsilon_px=1.0
+    )
     assert isinstance(pose, InterpolatedPose)
     assert pose.valid
     # weights 1/2 and 1/4, normalised: 2/3 and 1/3; the infinite error gets none
