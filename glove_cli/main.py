@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from glove_cli.commands import (
     bench,
     build,
+    calibrate,
     db,
     demo,
     evaluate,
@@ -25,7 +26,7 @@ from glove_cli.commands import (
 )
 from glovedb import __version__
 
-COMMANDS = (demo, render, pattern, build, db, bench, track, evaluate, render_sequence)
+COMMANDS = (demo, render, pattern, build, db, bench, calibrate, track, evaluate, render_sequence)
 # Errors that mean "the input or the request is wrong", not "the program is wrong".
 USER_ERRORS = (ValueError, TypeError, FileNotFoundError, IsADirectoryError, PermissionError)
 

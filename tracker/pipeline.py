@@ -185,9 +185,9 @@ class Tracker:
         self.color_table = color_table or nominal_table(pattern)
         self.skeleton = make_skeleton(hand_length)
         self.mesh = make_hand_mesh(self.skeleton, spacing_m=self.settings.mesh_spacing_m)
-        split = split_by_label(self.mesh, pattern)
-        self._model_vertex = split.source_vertex
-        self._model_labels = split.labels
+        self.split = split_by_label(self.mesh, pattern)
+        self._model_vertex = self.split.source_vertex
+        self._model_labels = self.split.labels
         self._smoother = PoseSmoother(self.settings.smoothing_frames)
         self._sizes = self.index.resolutions
 
@@ -244,6 +244,10 @@ class Tracker:
         timing["total"] = (time.perf_counter() - started) * 1000.0
         return TrackingResult(**{**result, "timing_ms": timing})
 
+    def reset(self) -> None:
+        """Forget the past frames (start of a new sequence)."""
+        self._smoother.reset()
+
     def _initial_translation(
         self,
         cloud_m: NDArray[np.float32],
@@ -271,10 +275,10 @@ class Tracker:
             forward_kinematics(posture, self.skeleton).keypoints_m[0] @ rotation.T + translation
         )
         pixels = frame.intrinsics.project(keypoints)
-        # Confidence: a good lookup (under a pixel at the last stage) and a tight,
+        # Confidence: a good lookup (a pixel or two at the last stage) and a tight,
         # well-supported fit (millimetres, most points kept).
         confidence = float(
-            np.exp(-float(lookup_error_px) / 2.0)
+            np.exp(-float(lookup_error_px) / 4.0)
             * np.exp(-icp.cost_m / 0.01)
             * min(1.0, icp.inlier_fraction / 0.8)
         )

@@ -31,7 +31,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def add_tracker_options(parser: argparse.ArgumentParser) -> None:
     """Options shared by ``track`` and ``eval``."""
     parser.add_argument("--cascade", help="lookup cascade, e.g. 8:2000,16:300,64:3")
-    parser.add_argument("--colors", help="calibrated color table (.npz) from glove calibrate")
+    parser.add_argument(
+        "--colors",
+        help="color table (.npz) from glove calibrate (default: DB.colors.npz if present)",
+    )
     parser.add_argument("--icp-stride", type=int, help="use every n-th point in ICP")
     parser.add_argument("--no-smoothing", action="store_true", help="turn temporal smoothing off")
 
@@ -40,6 +43,7 @@ def make_tracker(args: argparse.Namespace) -> Tracker:
     """A Tracker configured from the shared options."""
     from dataclasses import replace
 
+    from glove_cli.commands.calibrate import default_table_path
     from tracker.classify import load_table
     from tracker.pipeline import Tracker, TrackerSettings
 
@@ -50,7 +54,12 @@ def make_tracker(args: argparse.Namespace) -> Tracker:
         settings = replace(settings, icp_stride=args.icp_stride)
     if args.no_smoothing:
         settings = replace(settings, smoothing_frames=1)
-    table = load_table(args.colors) if args.colors else None
+    colors = args.colors
+    beside = default_table_path(args.db)
+    if colors is None and beside.exists():
+        colors = beside
+        print(f"glove: using the calibrated color table {beside}", file=sys.stderr)
+    table = load_table(colors) if colors else None
     return Tracker(args.db, settings=settings, color_table=table)
 
 

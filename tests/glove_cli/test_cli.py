@@ -1,5 +1,6 @@
 """The ``glove`` command line: help, exit codes, one-line errors, the render picture."""
 
+import json
 import subprocess
 import sys
 
@@ -21,7 +22,8 @@ def test_help_lists_the_commands(capsys):
         main(["--help"])
     assert exit_info.value.code == 0
     out = capsys.readouterr().out
-    for command in ("demo", "render", "pattern"):
+    for command in ("demo", "render", "pattern", "build", "db", "bench", "calibrate", "track",
+                    "eval", "render-sequence"):  # fmt: skip
         assert command in out
 
 
@@ -58,9 +60,16 @@ def test_render_writes_color_labels_and_depth_side_by_side(tmp_path):
 
 
 @pytest.mark.gl
-def test_demo_renders_every_named_posture(tmp_path):
-    result = run_glove("demo", "--out", str(tmp_path))
+def test_demo_runs_the_whole_job(tmp_path):
+    result = run_glove("demo", "--out", str(tmp_path / "demo"), "--frames", "8",
+                       "--cache", str(tmp_path / "cache"))  # fmt: skip
     assert result.returncode == 0, result.stderr
-    assert "rendered 10 named postures" in result.stdout
-    assert cv2.imread(str(tmp_path / "postures.png")) is not None
-    assert cv2.imread(str(tmp_path / "pattern.png")) is not None
+    assert "thesis (Fig. 4.6)" in result.stdout and "8 frames" in result.stdout
+    assert (tmp_path / "demo" / "tracking" / "poses.jsonl").read_text().count("\n") == 8
+    assert cv2.imread(str(tmp_path / "demo" / "errors.png")) is not None
+    summary = json.loads((tmp_path / "demo" / "summary.json").read_text())
+    assert summary["missed_frames"] == 0 and summary["rotation_error_deg"]["median"] < 5
+    # A second run reuses the cached database.
+    again = run_glove("demo", "--out", str(tmp_path / "demo"), "--frames", "2",
+                      "--cache", str(tmp_path / "cache"))  # fmt: skip
+    assert again.returncode == 0 and "reusing" in again.stdout
