@@ -39,15 +39,16 @@ from builder.config import DatabaseConfig, config_from_dict
 from builder.sampling import farthest_point_selection, synergy_postures
 from glovedb.camera import CameraIntrinsics
 from glovedb.database import FORMAT_NAME, FORMAT_VERSION, image_dataset_options
+from glovedb.hand_model import forward_kinematics, make_skeleton
 from glovedb.posture_io import load_postures
 from glovedb.postures import load_named_postures
 from glovedb.resources import config_path
 from glovedb.tiny_images import tiny_images_from_pixels
 from glovedb.trajectory import load_trajectory
-from glovedb.views import database_views, icosphere
+from glovedb.views import HAND_CENTRE, database_views, icosphere
 
-# Radius around the hand centre, in hand lengths, that the render must contain.
-_HAND_RADIUS = 0.66
+# Reach of the wrist cuff from the middle of the hand, in hand lengths.
+_CUFF_RADIUS = 0.66
 
 
 @dataclass(frozen=True)
@@ -132,15 +133,25 @@ def collect_postures(config: DatabaseConfig) -> tuple[NDArray[np.float64], tuple
     return all_postures, tuple(names)
 
 
-def render_camera(config: DatabaseConfig) -> CameraIntrinsics:
-    """A square camera in which the whole hand fits from any direction at the distance."""
+def render_camera(config: DatabaseConfig, postures_rad: NDArray[np.float64]) -> CameraIntrinsics:
+    """A square camera in which the whole hand fits from any direction at the distance.
+
+    The hand must stay inside a sphere about the middle of the hand: the wrist cuff's
+    reach, or the farthest keypoint of any posture plus a fingertip's thickness.
+    """
     size = config.images.render_size
-    radius = _HAND_RADIUS * config.hand_length_m
+    length = config.hand_length_m
+    centre = np.array(HAND_CENTRE) * length
+    keypoints = forward_kinematics(postures_rad, make_skeleton(length)).keypoints_m
+    reach = float(np.linalg.norm(keypoints - centre, axis=-1).max()) + 0.1 * length
+    radius = max(_CUFF_RADIUS * length, reach)
     distance = config.views.distance_m
+    if radius >= 0.9 * distance:
+        raise ValueError(f"[views] distance_m = {distance} is too close for the hand")
     # The widest a sphere of this radius can look: tan = r / sqrt(d^2 - r^2).
     focal = (size / 2 - 2) * math.sqrt(distance**2 - radius**2) / radius
-    centre = (size - 1) / 2
-    return CameraIntrinsics(size, size, focal, focal, centre, centre)
+    middle = (size - 1) / 2
+    return CameraIntrinsics(size, size, focal, focal, middle, middle)
 
 
 def make_plan(config: DatabaseConfig) -> BuildPlan:
@@ -159,7 +170,7 @@ def make_plan(config: DatabaseConfig) -> BuildPlan:
         view_rotations=rotations,
         view_translations_m=translations,
         roll_rad=roll_rad,
-        camera=render_camera(config),
+        camera=render_camera(config, postures),
     )
 
 

@@ -14,21 +14,28 @@ scikit-learn nor pickle.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
-from typing import Literal
+import math
+import os
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any, Literal
 
 import numpy as np
 import sklearn
+import tomllib
 from numpy.typing import ArrayLike, NDArray
 from sklearn.ensemble import ExtraTreesClassifier, RandomForestClassifier
 
+from builder.fingertip_data import FingertipDataConfig, data_config_from_dict
 from glovedb import __version__
 from glovedb._validate import as_array, check_choice
+from tracker.fingertips.detect import DetectorConfig, detector_config_from_dict
 from tracker.fingertips.features import (
     backproject,
     foreground_pixels,
     intrinsics_array,
     mask_depth_range,
+    nearest_band,
     pixel_features,
     random_offsets,
 )
@@ -56,11 +63,19 @@ class FingertipTrainingConfig:
         A pixel is a fingertip pixel within this 3D distance of a visible tip, metres.
     depth_range_m : tuple of float
         Working range (near, far) in metres; depth outside it is background.
+    depth_band_m : float
+        Only depth within this many metres behind the nearest surface is kept
+        (:func:`tracker.fingertips.features.nearest_band`); use the detector's value.
     pixels_per_image : int
         Pixels sampled per training image.
     positive_fraction : float
         Largest share of fingertip pixels among the sampled ones (they are rare, so
         they are over-sampled; leaf probabilities refer to this balance).
+    hard_negative_fraction : float
+        Share of the non-fingertip samples drawn from pixels within
+        ``hard_negative_radius_m`` of a visible tip (finger sides, knuckles), where
+        mistakes are likely; the rest are uniform over the image.
+    hard_negative_radius_m : float
     forest_kind : {"extra_trees", "random_forest"}
     n_trees : int
     max_depth : int
@@ -78,8 +93,11 @@ class FingertipTrainingConfig:
     unary_fraction: float = 0.5
     tip_radius_m: float = 0.015
     depth_range_m: tuple[float, float] = (0.1, 1.0)
+    depth_band_m: float = math.inf
     pixels_per_image: int = 2000
     positive_fraction: float = 0.4
+    hard_negative_fraction: float = 0.0
+    hard_negative_radius_m: float = 0.06
     forest_kind: ForestKind = "extra_trees"
     n_trees: int = 8
     max_depth: int = 18
@@ -152,20 +170,82 @@ def sample_image(
     """Sample, label and featurise the pixels of one training image."""
     near, far = config.depth_range_m
     masked = mask_depth_range(depth_m, near_m=near, far_m=far)
+    masked = nearest_band(masked, band_m=config.depth_band_m)
     pixels = foreground_pixels(masked)
     points = backproject(pixels, masked[pixels[:, 1], pixels[:, 0]], intrinsics)
     is_tip, offset = label_points(points, tips_m, tip_radius_m=config.tip_radius_m)
-    positives, negatives = np.flatnonzero(is_tip), np.flatnonzero(~is_tip)
+    positives = np.flatnonzero(is_tip)
+    near = np.linalg.norm(offset, axis=1) <= config.hard_negative_radius_m
     n_pos = min(positives.size, int(config.positive_fraction * config.pixels_per_image))
-    n_neg = min(negatives.size, config.pixels_per_image - n_pos)
+    n_neg = config.pixels_per_image - n_pos
+    hard = np.flatnonzero(~is_tip & near)
+    hard = rng.choice(hard, min(hard.size, int(config.hard_negative_fraction * n_neg)), False)
+    rest = np.setdiff1d(np.flatnonzero(~is_tip), hard, assume_unique=True)
     chosen = np.concatenate(
         [
             rng.choice(positives, n_pos, replace=False),
-            rng.choice(negatives, n_neg, replace=False),
+            hard,
+            rng.choice(rest, min(rest.size, n_neg - hard.size), replace=False),
         ]
     )
     features = pixel_features(masked, pixels[chosen], offsets_m, intrinsics)
     return TrainingSamples(features, is_tip[chosen], offset[chosen])
+
+
+TrainingImage = tuple[ArrayLike, ArrayLike, ArrayLike]
+"""One training image: depth ``(H, W)`` metres, intrinsics ``(4,)``, fingertips ``(5, 3)``."""
+
+
+def collect_samples(
+    images: Iterable[TrainingImage],
+    offsets_m: ArrayLike,
+    *,
+    config: FingertipTrainingConfig = FingertipTrainingConfig(),
+) -> TrainingSamples:
+    """Sample training pixels from a stream of images, holding only the samples.
+
+    Parameters
+    ----------
+    images : iterable of (depth_m, intrinsics, tips_m)
+        ``depth_m`` (H, W) float32 metres, 0 where missing; ``intrinsics`` (4,) float
+        ``(fx, fy, cx, cy)`` pixels; ``tips_m`` (5, 3) float, camera frame, metres,
+        NaN for a fingertip that is not visible. Image sizes may differ.
+    offsets_m : (F, 2, 2) float32
+        Feature probe offsets (:func:`tracker.fingertips.features.random_offsets`).
+    config : FingertipTrainingConfig
+
+    Returns
+    -------
+    TrainingSamples
+    """
+    offsets = as_array("offsets_m", offsets_m, (None, 2, 2), np.float32, kind="f", finite=True)
+    rng = np.random.default_rng(config.seed)
+    parts = []
+    for depth_m, intrinsics, tips_m in images:
+        depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
+        tips = as_array("tips_m", tips_m, (N_TIPS, 3), np.float64, kind="fiu")
+        camera = intrinsics_array(intrinsics)
+        parts.append(sample_image(depth, camera, tips, offsets, config, rng))
+    if not parts:
+        raise ValueError("images: expected at least one training image")
+    return TrainingSamples(
+        features=np.concatenate([p.features for p in parts]),
+        is_tip=np.concatenate([p.is_tip for p in parts]),
+        offset_m=np.concatenate([p.offset_m for p in parts]),
+    )
+
+
+def _image_stack(
+    depth_images_m: ArrayLike, intrinsics: ArrayLike, tips_m: ArrayLike
+) -> list[TrainingImage]:
+    """Check stacked training arrays and split them into per-image tuples."""
+    depth = as_array("depth_images_m", depth_images_m, (None, None, None), np.float32, kind="fiu")
+    n_images = depth.shape[0]
+    tips = as_array("tips_m", tips_m, (n_images, N_TIPS, 3), np.float64, kind="fiu")
+    cameras = np.asarray(intrinsics, dtype=np.float64)
+    cameras = np.broadcast_to(cameras, (n_images, 4)) if cameras.ndim == 1 else cameras
+    cameras = as_array("intrinsics", cameras, (n_images, 4), np.float64, finite=True)
+    return list(zip(depth, cameras, tips, strict=True))
 
 
 def sample_training_set(
@@ -195,23 +275,8 @@ def sample_training_set(
     -------
     TrainingSamples
     """
-    depth = as_array("depth_images_m", depth_images_m, (None, None, None), np.float32, kind="fiu")
-    n_images = depth.shape[0]
-    tips = as_array("tips_m", tips_m, (n_images, N_TIPS, 3), np.float64, kind="fiu")
-    cameras = np.asarray(intrinsics, dtype=np.float64)
-    cameras = np.broadcast_to(cameras, (n_images, 4)) if cameras.ndim == 1 else cameras
-    cameras = as_array("intrinsics", cameras, (n_images, 4), np.float64, finite=True)
-    offsets = as_array("offsets_m", offsets_m, (None, 2, 2), np.float32, kind="f", finite=True)
-    rng = np.random.default_rng(config.seed)
-    parts = [
-        sample_image(depth[k], intrinsics_array(cameras[k]), tips[k], offsets, config, rng)
-        for k in range(n_images)
-    ]
-    return TrainingSamples(
-        features=np.concatenate([p.features for p in parts]),
-        is_tip=np.concatenate([p.is_tip for p in parts]),
-        offset_m=np.concatenate([p.offset_m for p in parts]),
-    )
+    images = _image_stack(depth_images_m, intrinsics, tips_m)
+    return collect_samples(images, offsets_m, config=config)
 
 
 def fit_classifier(
@@ -264,6 +329,11 @@ def leaf_offsets(
     return result
 
 
+def _json_number(value: object) -> object:
+    """``value`` with an infinite float replaced by None (JSON has no infinity)."""
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
 def export_forest(
     classifier: ExtraTreesClassifier | RandomForestClassifier,
     samples: TrainingSamples,
@@ -293,7 +363,7 @@ def export_forest(
         columns["probability"].append(value[:, 1] / value.sum(axis=1))
         start += tree.node_count
     settings = {
-        **asdict(config),
+        **{k: _json_number(v) for k, v in asdict(config).items()},
         "sklearn_version": sklearn.__version__,
         "n_training_pixels": int(samples.is_tip.size),
         "n_positive_pixels": int(samples.is_tip.sum()),
@@ -312,6 +382,53 @@ def export_forest(
         settings_json=json.dumps(settings, sort_keys=True),
         version=__version__,
     )
+
+
+def train_on_images(
+    images: Iterable[TrainingImage],
+    *,
+    config: FingertipTrainingConfig = FingertipTrainingConfig(),
+    extra_settings: Mapping[str, Any] | None = None,
+) -> FingertipForest:
+    """Train the fingertip Hough forest from a stream of images with known fingertips.
+
+    Parameters
+    ----------
+    images : iterable of (depth_m, intrinsics, tips_m)
+        As for :func:`collect_samples`; consumed once, only the samples are kept.
+    config : FingertipTrainingConfig
+    extra_settings : mapping, optional
+        More settings to record in the model (e.g. the data and detector settings).
+
+    Returns
+    -------
+    FingertipForest
+        Save it with :func:`tracker.fingertips.forest.save_forest`.
+    """
+    offsets = random_offsets(
+        config.n_features,
+        max_offset_m=config.max_offset_m,
+        unary_fraction=config.unary_fraction,
+        seed=config.seed,
+    )
+    counted = _Counted(images)
+    samples = collect_samples(counted, offsets, config=config)
+    classifier = fit_classifier(samples, config=config)
+    settings = {"n_images": counted.count, **(extra_settings or {})}
+    return export_forest(classifier, samples, offsets, config=config, extra_settings=settings)
+
+
+class _Counted:
+    """An iterable that counts the items it has handed out."""
+
+    def __init__(self, items: Iterable[TrainingImage]) -> None:
+        self._items = items
+        self.count = 0
+
+    def __iter__(self) -> Iterator[TrainingImage]:
+        for item in self._items:
+            self.count += 1
+            yield item
 
 
 def train_fingertip_forest(
@@ -339,15 +456,99 @@ def train_fingertip_forest(
     FingertipForest
         Save it with :func:`tracker.fingertips.forest.save_forest`.
     """
-    offsets = random_offsets(
-        config.n_features,
-        max_offset_m=config.max_offset_m,
-        unary_fraction=config.unary_fraction,
-        seed=config.seed,
+    return train_on_images(_image_stack(depth_images_m, intrinsics, tips_m), config=config)
+
+
+def training_config_from_dict(table: Mapping[str, Any]) -> FingertipTrainingConfig:
+    """Build a :class:`FingertipTrainingConfig` from a TOML table; unknown keys are errors."""
+    known = {field.name for field in fields(FingertipTrainingConfig)}
+    unknown = set(table) - known
+    if unknown:
+        raise ValueError(f"training: unknown settings {', '.join(sorted(unknown))}")
+    values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in table.items()}
+    return FingertipTrainingConfig(**values)
+
+
+@dataclass(frozen=True)
+class FingertipRecipe:
+    """Everything that makes a shipped model: data, training and detector settings.
+
+    Attributes
+    ----------
+    data : FingertipDataConfig
+        How training images are rendered (:mod:`builder.fingertip_data`).
+    training : FingertipTrainingConfig
+    detector : DetectorConfig
+        Detection settings recorded in the model; its ``depth_band_m`` is the
+        training one.
+    """
+
+    data: FingertipDataConfig
+    training: FingertipTrainingConfig
+    detector: DetectorConfig
+
+
+def load_recipe(path: str | os.PathLike[str], **data_overrides: Any) -> FingertipRecipe:
+    """Read a ``configs/fingertips/*.toml`` file (tables ``data``, ``training``, ``detector``).
+
+    Parameters
+    ----------
+    path : path
+    **data_overrides
+        Replace settings of the ``data`` table (e.g. ``n_images``, ``noise``).
+
+    Raises
+    ------
+    ValueError
+        For an unreadable file, an unknown table or setting, or a detector table that
+        sets ``depth_band_m``.
+    """
+    try:
+        with open(path, "rb") as stream:
+            content = tomllib.load(stream)
+    except (OSError, tomllib.TOMLDecodeError) as error:
+        raise ValueError(f"{os.fspath(path)}: cannot read config ({error})") from error
+    unknown = set(content) - {"data", "training", "detector"}
+    if unknown:
+        raise ValueError(f"{os.fspath(path)}: unknown tables {', '.join(sorted(unknown))}")
+    data = replace(data_config_from_dict(content.get("data", {})), **data_overrides)
+    training = training_config_from_dict(content.get("training", {}))
+    detector_table = content.get("detector", {})
+    if "depth_band_m" in detector_table:
+        raise ValueError("detector: depth_band_m comes from [training], do not set it here")
+    detector = detector_config_from_dict(
+        {**detector_table, "depth_band_m": _json_number(training.depth_band_m)}
     )
-    samples = sample_training_set(depth_images_m, intrinsics, tips_m, offsets, config=config)
-    classifier = fit_classifier(samples, config=config)
-    n_images = int(np.shape(depth_images_m)[0])
-    return export_forest(
-        classifier, samples, offsets, config=config, extra_settings={"n_images": n_images}
+    return FingertipRecipe(data, training, detector)
+
+
+def train_from_recipe(recipe: FingertipRecipe, *, progress: bool = False) -> FingertipForest:
+    """Render the recipe's training images and train the forest on them.
+
+    Parameters
+    ----------
+    recipe : FingertipRecipe
+    progress : bool
+        Show a progress bar (on a terminal).
+
+    Returns
+    -------
+    FingertipForest
+        With the data, detector and training settings recorded.
+    """
+    from tqdm import tqdm
+
+    from builder.fingertip_data import generate_examples
+
+    examples = generate_examples(recipe.data)
+    images = (
+        (example.depth_m, example.intrinsics, example.tips_m)
+        for example in tqdm(
+            examples, total=recipe.data.n_images, desc="render", unit="img", disable=not progress
+        )
     )
+    settings = {
+        "data": asdict(recipe.data),
+        "detector": recipe.detector.as_dict(),
+    }
+    return train_on_images(images, config=recipe.training, extra_settings=settings)

@@ -19,6 +19,7 @@ from glove_cli.commands import (
     db,
     demo,
     evaluate,
+    fingertips,
     pattern,
     render,
     render_sequence,
@@ -26,7 +27,19 @@ from glove_cli.commands import (
 )
 from glovedb import __version__
 
-COMMANDS = (demo, render, pattern, build, db, bench, calibrate, track, evaluate, render_sequence)
+COMMANDS = (
+    demo,
+    render,
+    pattern,
+    build,
+    db,
+    bench,
+    calibrate,
+    track,
+    evaluate,
+    fingertips,
+    render_sequence,
+)
 # Errors that mean "the input or the request is wrong", not "the program is wrong".
 USER_ERRORS = (ValueError, TypeError, FileNotFoundError, IsADirectoryError, PermissionError)
 

@@ -99,3 +99,16 @@ def test_roll_rotates_about_the_optical_axis():
     rolled, _ = pose_for_view([0, 0, 1], 0.5, roll_rad=0.3)
     np.testing.assert_allclose(geodesic_angle(plain, rolled), 0.3, atol=1e-12)
     np.testing.assert_allclose(rolled[2], plain[2], atol=1e-12)
+
+
+def test_plane_depth_known_values():
+    camera = CameraIntrinsics(32, 24, 100.0, 100.0, 15.5, 11.5)
+    np.testing.assert_allclose(
+        camera.plane_depth([0.0, 0.0, -1.0], [0.0, 0.0, 0.8]), 0.8, rtol=1e-6
+    )
+    tilted = camera.plane_depth([0.0, -np.sqrt(0.5), -np.sqrt(0.5)], [0, 0, 0.8])
+    # y + z = 0.8 on the plane: at row v, y = (v - cy) / fy * z.
+    v = np.arange(24)[:, None]
+    np.testing.assert_allclose(tilted, np.broadcast_to(0.8 / (1 + (v - 11.5) / 100), (24, 32)))
+    behind = camera.plane_depth([0.0, 0.0, 1.0], [0.0, 0.0, -0.5])
+    assert not behind.any()

@@ -8,11 +8,12 @@ from builder.fingertip_training import (
     label_points,
     train_fingertip_forest,
 )
-from tracker.fingertips import FINGER_NAMES, detect_fingertips
+from tracker.fingertips import FINGER_NAMES, DetectorConfig, detect_fingertips
 from tracker.fingertips.evaluation import fingertip_metrics
 from tracker.fingertips.features import project
 
 INTRINSICS = np.array([170.0, 170.0, 80.0, 60.0])
+STRIDE_1 = DetectorConfig(stride=1)
 SHAPE = (120, 160)
 
 
@@ -121,7 +122,7 @@ def test_training_is_deterministic(toy_forest) -> None:
 def test_detects_planted_tips_on_held_out_toy_hands(toy_forest) -> None:
     depth, tips = _toy_set(12, seed=1)
     tips_px = project(tips, INTRINSICS)
-    detections = [detect_fingertips(d, INTRINSICS, toy_forest, stride=1) for d in depth]
+    detections = [detect_fingertips(d, INTRINSICS, toy_forest, config=STRIDE_1) for d in depth]
     metrics = fingertip_metrics(detections, tips, tips_px)
     assert metrics.annotated_tips >= 45
     assert metrics.recall_15mm >= 0.75  # measured 0.86

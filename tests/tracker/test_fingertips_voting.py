@@ -5,6 +5,7 @@ import pytest
 
 from tracker.fingertips import (
     Detection,
+    DetectorConfig,
     FingertipForest,
     VotingConfig,
     detect_fingertips,
@@ -12,6 +13,8 @@ from tracker.fingertips import (
     fingertips_output,
 )
 from tracker.fingertips.voting import Votes, find_peaks
+
+STRIDE_1 = DetectorConfig(stride=1)
 
 INTRINSICS = (200.0, 200.0, 40.0, 40.0)
 Z_M = 0.4
@@ -51,12 +54,12 @@ def _toy_forest() -> FingertipForest:
 def test_votes_peak_at_the_planted_tip() -> None:
     depth, tip_m = _bar_scene()
     forest = _toy_forest()
-    votes = fingertip_votes(depth, INTRINSICS, forest, stride=1)
+    votes = fingertip_votes(depth, INTRINSICS, forest, config=STRIDE_1)
     # 4 rows (8 mm / 2 mm per pixel) x 6 columns of pixels vote with probability 1.
     assert votes.weights.size == 24
     pixel_area = (Z_M / INTRINSICS[0]) ** 2
     np.testing.assert_allclose(votes.weights, pixel_area / 25e-6, rtol=1e-5)
-    detections = detect_fingertips(depth, INTRINSICS, forest, stride=1)
+    detections = detect_fingertips(depth, INTRINSICS, forest, config=STRIDE_1)
     assert len(detections) == 1
     found = detections[0]
     position = np.array([found.x_m, found.y_m, found.z_m])
@@ -69,11 +72,12 @@ def test_votes_peak_at_the_planted_tip() -> None:
 def test_confidence_does_not_depend_on_stride_and_c_thr_filters() -> None:
     depth, _ = _bar_scene()
     forest = _toy_forest()
-    full = detect_fingertips(depth, INTRINSICS, forest, stride=1)
-    coarse = detect_fingertips(depth, INTRINSICS, forest, stride=2)
+    full = detect_fingertips(depth, INTRINSICS, forest, config=STRIDE_1)
+    coarse = detect_fingertips(depth, INTRINSICS, forest, config=DetectorConfig(stride=2))
     np.testing.assert_allclose(coarse[0].confidence, full[0].confidence, rtol=1e-5)
     too_high = full[0].confidence * 1.01
-    assert detect_fingertips(depth, INTRINSICS, forest, stride=1, c_thr=too_high) == ()
+    stricter = DetectorConfig(stride=1, c_thr=too_high)
+    assert detect_fingertips(depth, INTRINSICS, forest, config=stricter) == ()
 
 
 def test_model_tips_name_the_finger_and_output_follows_conventions() -> None:

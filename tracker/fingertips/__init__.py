@@ -6,18 +6,23 @@ with Salient Points" (GCPR 2014), Sec. 3.2.5, with Shotton et al.'s depth featur
 
 from tracker.fingertips.assignment import FINGER_NAMES, Assignment, assign_detections
 from tracker.fingertips.detect import (
+    DEFAULT_DETECTOR,
     Detection,
+    DetectorConfig,
     detect_fingertips,
     fingertip_votes,
     fingertips_output,
+    model_detector_config,
 )
 from tracker.fingertips.forest import FingertipForest, load_forest, save_forest
 from tracker.fingertips.voting import VotingConfig
 
 __all__ = [
+    "DEFAULT_DETECTOR",
     "FINGER_NAMES",
     "Assignment",
     "Detection",
+    "DetectorConfig",
     "FingertipForest",
     "VotingConfig",
     "assign_detections",
@@ -25,5 +30,6 @@ __all__ = [
     "fingertip_votes",
     "fingertips_output",
     "load_forest",
+    "model_detector_config",
     "save_forest",
 ]

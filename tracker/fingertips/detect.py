@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from glovedb._validate import as_array
 from tracker.fingertips.assignment import FINGER_NAMES, assign_detections
@@ -16,7 +17,9 @@ from tracker.fingertips.features import (
     foreground_pixels,
     intrinsics_array,
     mask_depth_range,
+    nearest_band,
     project,
+    stride_for_spacing,
 )
 from tracker.fingertips.forest import FingertipForest, apply_depth, predict_leaves
 from tracker.fingertips.voting import (
@@ -55,13 +58,116 @@ class Detection:
     finger: str | None = None
 
 
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Settings of detection on one frame.
+
+    Attributes
+    ----------
+    c_thr : float
+        Smallest confidence kept (see :mod:`tracker.fingertips.voting`).
+    stride : int
+        Pixel step of the evaluated grid when ``pixel_spacing_m`` is 0.
+    pixel_spacing_m : float
+        When positive, the stride is chosen per frame so that the grid samples the
+        nearest surface about every ``pixel_spacing_m`` metres
+        (:func:`tracker.fingertips.features.stride_for_spacing`): the cost per frame
+        then hardly depends on resolution or distance.
+    depth_band_m : float
+        Only depth within this many metres behind the nearest surface is the hand
+        (:func:`tracker.fingertips.features.nearest_band`); ``inf`` turns it off.
+    max_pixels : int
+        The stride grows until at most about this many pixels are evaluated (bounds
+        the time per frame when a background surface lies within the band); 0: no
+        bound. Vote weights scale with the stride, so confidences do not change.
+    voting : VotingConfig
+    """
+
+    c_thr: float = 3.0
+    stride: int = 2
+    pixel_spacing_m: float = 0.0
+    depth_band_m: float = math.inf
+    max_pixels: int = 0
+    voting: VotingConfig = DEFAULT_VOTING
+
+    def __post_init__(self) -> None:
+        if not self.c_thr > 0:
+            raise ValueError(f"c_thr: expected a positive threshold, got {self.c_thr}")
+        if self.stride < 1:
+            raise ValueError(f"stride: expected at least 1, got {self.stride}")
+        if self.pixel_spacing_m < 0:
+            raise ValueError(f"pixel_spacing_m: expected >= 0, got {self.pixel_spacing_m}")
+        if self.max_pixels < 0:
+            raise ValueError(f"max_pixels: expected >= 0, got {self.max_pixels}")
+        if not self.depth_band_m > 0:
+            raise ValueError(f"depth_band_m: expected a positive depth, got {self.depth_band_m}")
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready settings (``depth_band_m`` inf becomes None)."""
+        values = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "voting"}
+        if not math.isfinite(values["depth_band_m"]):
+            values["depth_band_m"] = None
+        values["voting"] = {f.name: getattr(self.voting, f.name) for f in fields(self.voting)}
+        return values
+
+
+DEFAULT_DETECTOR = DetectorConfig()
+"""The default detection settings (immutable)."""
+
+
+def detector_config_from_dict(table: Mapping[str, Any]) -> DetectorConfig:
+    """Build a :class:`DetectorConfig` from a dict as written by :meth:`DetectorConfig.as_dict`.
+
+    Raises
+    ------
+    ValueError
+        For an unknown key.
+    """
+    known = {f.name for f in fields(DetectorConfig)}
+    voting_known = {f.name for f in fields(VotingConfig)}
+    unknown = (set(table) - known) | (set(table.get("voting", {})) - voting_known)
+    if unknown:
+        raise ValueError(f"detector: unknown settings {', '.join(sorted(unknown))}")
+    values = {k: v for k, v in table.items() if k != "voting"}
+    if values.get("depth_band_m", 0.0) is None:
+        values["depth_band_m"] = math.inf
+    return replace(DEFAULT_DETECTOR, voting=VotingConfig(**table.get("voting", {})), **values)
+
+
+def model_detector_config(model: FingertipForest) -> DetectorConfig:
+    """The detection settings recorded with a trained forest (defaults if none)."""
+    return detector_config_from_dict(model.settings.get("detector", {}))
+
+
+def hand_depth(
+    depth_m: ArrayLike, model: FingertipForest, *, depth_band_m: float = math.inf
+) -> NDArray[np.float32]:
+    """Depth restricted to the forest's working range and the band behind the nearest surface.
+
+    Parameters
+    ----------
+    depth_m : (H, W) float
+        Depth in metres, 0 where missing.
+    model : FingertipForest
+    depth_band_m : float
+        See :class:`DetectorConfig`.
+
+    Returns
+    -------
+    (H, W) float32
+        0 outside.
+    """
+    near, far = model.depth_range_m
+    masked = mask_depth_range(depth_m, near_m=near, far_m=far)
+    return nearest_band(masked, band_m=depth_band_m)
+
+
 def fingertip_votes(
     depth_m: ArrayLike,
     intrinsics: ArrayLike,
     model: FingertipForest,
     *,
-    stride: int = 2,
-    voting: VotingConfig = DEFAULT_VOTING,
+    config: DetectorConfig = DEFAULT_DETECTOR,
 ) -> Votes:
     """The forest's 3D fingertip votes for one depth frame.
 
@@ -73,9 +179,8 @@ def fingertip_votes(
         ``(fx, fy, cx, cy)`` in pixels.
     model : FingertipForest
         Trained forest; its working depth range selects the hand pixels.
-    stride : int
-        Evaluate every ``stride``-th pixel in both directions.
-    voting : VotingConfig
+    config : DetectorConfig
+        Pixel grid, hand segmentation and voting settings.
 
     Returns
     -------
@@ -83,14 +188,21 @@ def fingertip_votes(
     """
     depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
     camera = intrinsics_array(intrinsics)
-    near, far = model.depth_range_m
-    masked = mask_depth_range(depth, near_m=near, far_m=far)
+    masked = hand_depth(depth, model, depth_band_m=config.depth_band_m)
+    stride = config.stride
+    if config.pixel_spacing_m > 0:
+        stride = stride_for_spacing(masked, float(camera[0]), spacing_m=config.pixel_spacing_m)
+    if config.max_pixels > 0:
+        n_foreground = int(np.count_nonzero(masked))
+        stride = max(stride, math.ceil(math.sqrt(n_foreground / config.max_pixels)))
     pixels = foreground_pixels(masked, stride=stride)
     prediction = predict_leaves(model, apply_depth(model, masked, pixels, camera))
     z = masked[pixels[:, 1], pixels[:, 0]]
     points = backproject(pixels, z, camera)
     area = (stride * z) ** 2 / np.float32(camera[0] * camera[1])
-    return cast_votes(points, prediction.probability, prediction.offset_m, area, config=voting)
+    return cast_votes(
+        points, prediction.probability, prediction.offset_m, area, config=config.voting
+    )
 
 
 def detect_fingertips(
@@ -99,11 +211,9 @@ def detect_fingertips(
     model: FingertipForest,
     *,
     model_tips_m: ArrayLike | None = None,
-    c_thr: float = 3.0,
+    config: DetectorConfig = DEFAULT_DETECTOR,
     lam: float = 1.2,
     distance_unit_m: float = 0.01,
-    stride: int = 2,
-    voting: VotingConfig = DEFAULT_VOTING,
 ) -> tuple[Detection, ...]:
     """Detect fingertips in a depth frame and, given a posed model, name their fingers.
 
@@ -119,15 +229,13 @@ def detect_fingertips(
         Fingertips of the posed hand model in the camera frame (metres), in the order
         of :data:`FINGER_NAMES`. When given, detections are assigned to fingers by
         Eq. 11 of Tzionas et al. 2014.
-    c_thr : float
-        Smallest confidence kept.
+    config : DetectorConfig
+        Confidence threshold, pixel grid, hand segmentation and voting settings;
+        :func:`model_detector_config` gives the ones recorded with a trained model.
     lam : float
         Weight lambda of the assignment.
     distance_unit_m : float
         Unit (metres) of the assignment's detection-to-finger distances.
-    stride : int
-        Pixel step of the evaluated grid.
-    voting : VotingConfig
 
     Returns
     -------
@@ -135,8 +243,8 @@ def detect_fingertips(
         Strongest first.
     """
     camera = intrinsics_array(intrinsics)
-    votes = fingertip_votes(depth_m, camera, model, stride=stride, voting=voting)
-    peaks = find_peaks(votes, c_thr=c_thr, config=voting)
+    votes = fingertip_votes(depth_m, camera, model, config=config)
+    peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
     names: list[str | None] = [None] * peaks.confidences.size
     if model_tips_m is not None:
         tips = as_array("model_tips_m", model_tips_m, (len(FINGER_NAMES), 3), np.float64)
@@ -144,7 +252,7 @@ def detect_fingertips(
             peaks.positions_m,
             peaks.confidences,
             tips,
-            c_thr=c_thr,
+            c_thr=config.c_thr,
             lam=lam,
             distance_unit_m=distance_unit_m,
         )

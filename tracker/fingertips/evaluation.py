@@ -22,7 +22,7 @@ import json
 import math
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -32,8 +32,14 @@ from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
 from tracker.fingertips.assignment import FINGER_NAMES
-from tracker.fingertips.detect import Detection, detect_fingertips
+from tracker.fingertips.detect import (
+    DEFAULT_DETECTOR,
+    Detection,
+    DetectorConfig,
+    detect_fingertips,
+)
 from tracker.fingertips.forest import FingertipForest
+from tracker.fingertips.sequence import read_depth_scale, read_intrinsics
 
 MEDIAPIPE_TIPS = (4, 8, 12, 16, 20)
 """Indices of the thumb, index, middle, ring and little fingertips among 21 keypoints."""
@@ -79,6 +85,9 @@ class FingertipMetrics:
         Mean 3D distance (mm) and 2D distance (px) of the pairs matched within 15 mm.
     recall_10px : float
         Share of annotated tips matched within 10 px in the image.
+    error_2d_px_ungated : float
+        Mean 2D distance (px) of a one-to-one matching of detections to annotated tips
+        without a distance gate (each frame pairs min(detections, tips) of them).
     ms_per_frame : float
         Mean detection time per frame in milliseconds (NaN when not measured).
     """
@@ -91,17 +100,12 @@ class FingertipMetrics:
     error_3d_mm: float
     error_2d_px: float
     recall_10px: float
+    error_2d_px_ungated: float = math.nan
     ms_per_frame: float = math.nan
 
     def as_dict(self) -> dict[str, float | int]:
         """The metrics as a JSON-ready dict."""
         return asdict(self)
-
-
-def _read_intrinsics(folder: Path) -> NDArray[np.float64]:
-    matrix = json.loads((folder / "intrinsic.json").read_text())["intrinsic_matrix"]
-    # Open3D writes the 3x3 matrix column-major: fx at 0, fy at 4, cx at 6, cy at 7.
-    return np.array([matrix[0], matrix[4], matrix[6], matrix[7]], dtype=np.float64)
 
 
 def _tips_of_record(record: dict) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -144,9 +148,7 @@ def read_annotated_depth(
     root = Path(folder)
     if not (root / annotations).is_file() or not (root / "intrinsic.json").is_file():
         raise ValueError(f"{root}: expected intrinsic.json and {annotations}")
-    meta_path = root / "meta.json"
-    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
-    depth_scale = float(meta.get("depth_scale", 1000.0))
+    depth_scale = read_depth_scale(root)
     records = [json.loads(line) for line in (root / annotations).read_text().splitlines() if line]
     depth, tips_m, tips_px = [], [], []
     for record in records:
@@ -160,7 +162,7 @@ def read_annotated_depth(
         tips_px.append(frame_px)
     return AnnotatedDepth(
         depth_m=np.stack(depth),
-        intrinsics=_read_intrinsics(root),
+        intrinsics=read_intrinsics(root)[0],
         tips_m=np.stack(tips_m),
         tips_px=np.stack(tips_px),
         frames=np.array([int(r["frame"]) for r in records], dtype=np.int64),
@@ -224,6 +226,7 @@ def fingertip_metrics(
     n_det = n_tip = matched_3d = matched_2d = 0
     errors_3d: list[float] = []
     errors_2d: list[float] = []
+    errors_ungated: list[float] = []
     for frame_dets, frame_m, frame_px in zip(detections, tips_m, tips_px, strict=True):
         annotated = np.all(np.isfinite(frame_m), axis=1)
         xyz = np.array([[d.x_m, d.y_m, d.z_m] for d in frame_dets]).reshape(-1, 3)
@@ -237,6 +240,9 @@ def fingertip_metrics(
         n_tip += int(annotated.sum())
         matched_3d += rows.size
         matched_2d += match_within(distance_2d, gate_2d_px)[0].size
+        if distance_2d.size:
+            rows_all, cols_all = linear_sum_assignment(distance_2d)
+            errors_ungated.extend(distance_2d[rows_all, cols_all])
     return FingertipMetrics(
         frames=len(detections),
         detections=n_det,
@@ -246,6 +252,7 @@ def fingertip_metrics(
         error_3d_mm=float(np.mean(errors_3d)) if errors_3d else math.nan,
         error_2d_px=float(np.mean(errors_2d)) if errors_2d else math.nan,
         recall_10px=_safe_ratio(matched_2d, n_tip),
+        error_2d_px_ungated=float(np.mean(errors_ungated)) if errors_ungated else math.nan,
     )
 
 
@@ -253,22 +260,34 @@ def evaluate_detector(
     data: AnnotatedDepth,
     model: FingertipForest,
     *,
-    c_thr: float = 3.0,
-    stride: int = 2,
+    config: DetectorConfig = DEFAULT_DETECTOR,
+    progress: Callable[[Iterable[NDArray[np.float32]]], Iterable[NDArray[np.float32]]]
+    | None = None,
 ) -> FingertipMetrics:
     """Run :func:`detect_fingertips` on every frame and score the detections.
+
+    Parameters
+    ----------
+    data : AnnotatedDepth
+    model : FingertipForest
+    config : DetectorConfig
+    progress : callable, optional
+        Wraps the frame iterable (e.g. ``tqdm.tqdm``) to show progress.
 
     Returns
     -------
     FingertipMetrics
         Including the mean wall-clock detection time per frame.
     """
-    start = time.perf_counter()
-    detections = [
-        detect_fingertips(depth, data.intrinsics, model, c_thr=c_thr, stride=stride)
-        for depth in data.depth_m
-    ]
-    elapsed_ms = 1000.0 * (time.perf_counter() - start)
+    frames: Iterable[NDArray[np.float32]] = data.depth_m
+    if progress is not None:
+        frames = progress(frames)
+    detections = []
+    elapsed = 0.0
+    for depth in frames:
+        start = time.perf_counter()
+        detections.append(detect_fingertips(depth, data.intrinsics, model, config=config))
+        elapsed += time.perf_counter() - start
     metrics = fingertip_metrics(detections, data.tips_m, data.tips_px)
     n_frames = max(len(detections), 1)
-    return dataclasses.replace(metrics, ms_per_frame=elapsed_ms / n_frames)
+    return dataclasses.replace(metrics, ms_per_frame=1000.0 * elapsed / n_frames)

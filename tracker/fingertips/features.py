@@ -103,6 +103,70 @@ def mask_depth_range(depth_m: ArrayLike, *, near_m: float, far_m: float) -> NDAr
     return np.where(inside, depth, np.float32(0.0)).astype(np.float32)
 
 
+def nearest_depth(depth_m: NDArray[np.float32], *, rank: int = 20) -> float:
+    """Depth of the nearest surface: the ``rank``-th smallest measurement on a 2-pixel grid.
+
+    A few spurious near pixels do not move it. Returns 0 when nothing is measured.
+    """
+    grid = depth_m[::2, ::2]
+    measured = grid[grid > 0]
+    if measured.size == 0:
+        return 0.0
+    k = min(rank, measured.size - 1)
+    return float(np.partition(measured, k)[k])
+
+
+def nearest_band(depth_m: ArrayLike, *, band_m: float) -> NDArray[np.float32]:
+    """Keep only depth within ``band_m`` behind the nearest surface (a hand segmentation).
+
+    The hand is taken to be the object nearest the camera, as in the depth thresholding
+    of Tzionas et al. (2014, Sec. 3.2.1); see :func:`nearest_depth`.
+
+    Parameters
+    ----------
+    depth_m : (H, W) float
+        Depth in metres, 0 where missing.
+    band_m : float
+        Depth of the kept band, metres; ``inf`` keeps everything.
+
+    Returns
+    -------
+    (H, W) float32
+        Copy with depth outside the band set to 0.
+    """
+    depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
+    if not band_m > 0:
+        raise ValueError(f"band_m: expected a positive depth, got {band_m}")
+    nearest = nearest_depth(depth)
+    if not np.isfinite(band_m) or nearest == 0:
+        return depth.copy()
+    return np.where(depth <= nearest + band_m, depth, np.float32(0.0)).astype(np.float32)
+
+
+def stride_for_spacing(depth_m: ArrayLike, focal_px: float, *, spacing_m: float) -> int:
+    """Pixel stride that samples the nearest surface about every ``spacing_m`` metres.
+
+    Parameters
+    ----------
+    depth_m : (H, W) float
+        Depth in metres, 0 where missing.
+    focal_px : float
+        Focal length in pixels.
+    spacing_m : float
+        Wanted lateral distance between sampled points at the nearest depth, metres.
+
+    Returns
+    -------
+    int
+        At least 1.
+    """
+    depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
+    if not spacing_m > 0:
+        raise ValueError(f"spacing_m: expected a positive distance, got {spacing_m}")
+    nearest = nearest_depth(depth)
+    return max(1, round(spacing_m * focal_px / nearest)) if nearest > 0 else 1
+
+
 def foreground_pixels(depth_m: ArrayLike, *, stride: int = 1) -> NDArray[np.int32]:
     """Pixels with a depth measurement, on a regular grid of step ``stride``.
 

@@ -35,6 +35,7 @@ import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -50,6 +51,9 @@ from tracker.fingertips.features import (
 
 FORMAT_NAME = "glove-fingertip-forest"
 FORMAT_VERSION = 1
+
+DEFAULT_MODEL_PATH = Path(__file__).resolve().parent / "models" / "default.npz"
+"""The pretrained forest shipped with the package (see ``docs/fingertips.md``)."""
 
 FeatureLookup = Callable[[NDArray[np.intp], NDArray[np.int32]], NDArray[np.float32]]
 """``(rows, feature_index) -> values``: feature ``feature_index[k]`` of row ``rows[k]``."""
@@ -148,14 +152,18 @@ def save_forest(forest: FingertipForest, path: str | os.PathLike[str]) -> None:
     )
 
 
-def load_forest(path: str | os.PathLike[str]) -> FingertipForest:
-    """Read a forest written by :func:`save_forest`; never unpickles anything.
+def load_forest(path: str | os.PathLike[str] = DEFAULT_MODEL_PATH) -> FingertipForest:
+    """Read a forest written by :func:`save_forest` (default: the shipped one).
+
+    Never unpickles anything.
 
     Raises
     ------
     ValueError
         If the file is not a fingertip forest of a supported format version.
     """
+    if not Path(path).is_file():
+        raise ValueError(f"{os.fspath(path)}: no such model file")
     with np.load(path, allow_pickle=False) as data:
         if "format" not in data or str(data["format"]) != FORMAT_NAME:
             raise ValueError(f"{os.fspath(path)}: not a {FORMAT_NAME} file")

@@ -1,0 +1,289 @@
+"""``glove fingertips``: train, run and score the depth fingertip detector.
+
+Sub-commands: ``train CONFIG.toml --out MODEL.npz`` (render training data and fit the
+forest), ``synth CONFIG.toml --out DIR`` (write rendered, annotated test frames),
+``detect INPUT --out DIR`` (``fingertips.jsonl`` and overlays) and ``eval INPUT``
+(scores against ``annotations.jsonl`` or ``groundtruth.jsonl``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "fingertips",
+        help="train, run and score the depth fingertip detector",
+        description="Fingertip detection on depth images with a Hough forest "
+        "(Tzionas et al. 2014). See docs/fingertips.md.",
+    )
+    actions = parser.add_subparsers(dest="action", metavar="ACTION", parser_class=type(parser))
+    actions.required = True
+
+    train = actions.add_parser(
+        "train",
+        help="render training depth and fit a forest",
+        description="Render hands with the config's [data] settings, fit the forest of "
+        "[training] and save it with the [detector] settings.",
+    )
+    train.add_argument("config", help="TOML config, e.g. configs/fingertips/default.toml")
+    train.add_argument("--out", required=True, help="model file to write (.npz)")
+    train.add_argument("--images", type=int, help="number of training images (overrides config)")
+    _add_noise_option(train)
+    train.set_defaults(run=run_train)
+
+    synth = actions.add_parser(
+        "synth",
+        help="write rendered, annotated test frames",
+        description="Render the config's [data] scenes into an RGB-D folder (depth only) "
+        "with groundtruth.jsonl and annotations.jsonl (visible fingertips).",
+    )
+    synth.add_argument("config", help="TOML config with a [data] table")
+    synth.add_argument("--out", required=True, help="output folder")
+    synth.add_argument("--images", type=int, help="number of frames (overrides config)")
+    _add_noise_option(synth)
+    synth.set_defaults(run=run_synth)
+
+    detect = actions.add_parser(
+        "detect",
+        help="detect fingertips in an RGB-D folder",
+        description="Write DIR/fingertips.jsonl (one record per frame: frame, fingertips) "
+        "and an overlay PNG per frame in DIR/overlay/ (or one contact sheet).",
+    )
+    detect.add_argument("input", help="RGB-D folder (intrinsic.json, depth/NNNNNN.png)")
+    _add_model_options(detect)
+    detect.add_argument("--out", required=True, help="output folder")
+    detect.add_argument(
+        "--sheet", action="store_true", help="one contact sheet instead of an overlay per frame"
+    )
+    detect.set_defaults(run=run_detect)
+
+    evaluate = actions.add_parser(
+        "eval",
+        help="score the detector on annotated frames",
+        description="Detect fingertips in an annotated RGB-D folder and score them: "
+        "precision and recall within 15 mm, mean 3D and 2D error of matched detections, "
+        "recall within 10 px, time per frame.",
+    )
+    evaluate.add_argument("input", help="folder with annotations.jsonl or groundtruth.jsonl")
+    _add_model_options(evaluate)
+    evaluate.add_argument(
+        "--annotations", help="annotation file in INPUT (default: annotations.jsonl if present)"
+    )
+    evaluate.add_argument("--json", action="store_true", help="print one JSON object")
+    evaluate.set_defaults(run=run_eval)
+
+
+def _add_noise_option(parser: argparse.ArgumentParser) -> None:
+    from builder.depth_noise import NOISE_PRESETS
+
+    parser.add_argument(
+        "--noise",
+        choices=NOISE_PRESETS,
+        help="use only this depth noise preset ('none': clean depth; overrides config)",
+    )
+
+
+def _add_model_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--model", help="model file (.npz; default: the shipped model)")
+    parser.add_argument("--c-thr", type=float, help="confidence threshold (default: the model's)")
+    parser.add_argument("--stride", type=int, help="fixed pixel stride (default: the model's)")
+
+
+def _positive(name: str, value: int | None) -> int | None:
+    if value is not None and value < 1:
+        raise ValueError(f"{name}: expected at least 1, got {value}")
+    return value
+
+
+def _data_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    overrides: dict[str, Any] = {}
+    if _positive("--images", args.images) is not None:
+        overrides["n_images"] = args.images
+    if args.noise is not None:
+        overrides["noise"] = (args.noise,)
+    return overrides
+
+
+def run_train(args: argparse.Namespace) -> int:
+    from builder.fingertip_training import load_recipe, train_from_recipe
+    from tracker.fingertips.forest import save_forest
+
+    recipe = load_recipe(args.config, **_data_overrides(args))
+    out = Path(args.out)
+    if not out.parent.is_dir():
+        raise ValueError(f"{out.parent}: folder does not exist")
+    started = time.perf_counter()
+    forest = train_from_recipe(recipe, progress=True)
+    save_forest(forest, out)
+    size_mb = out.stat().st_size / 1e6
+    print(
+        f"wrote {out} ({forest.n_trees} trees, {forest.node_feature.size} nodes, "
+        f"{size_mb:.1f} MB) in {time.perf_counter() - started:.0f} s"
+    )
+    return 0
+
+
+def run_synth(args: argparse.Namespace) -> int:
+    from dataclasses import asdict, replace
+
+    from tqdm import tqdm
+
+    from builder.fingertip_data import generate_examples, load_data_config, write_annotated_folder
+
+    config = replace(load_data_config(args.config), **_data_overrides(args))
+    examples = tqdm(generate_examples(config), total=config.n_images, desc="render", unit="img")
+    count = write_annotated_folder(examples, args.out, settings={"data": asdict(config)})
+    print(f"wrote {count} frames to {args.out}")
+    return 0
+
+
+def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
+    from dataclasses import replace
+
+    from tracker.fingertips import load_forest, model_detector_config
+    from tracker.fingertips.forest import DEFAULT_MODEL_PATH
+
+    model = load_forest(args.model if args.model else DEFAULT_MODEL_PATH)
+    config = model_detector_config(model)
+    if args.c_thr is not None:
+        if not args.c_thr > 0:
+            raise ValueError(f"--c-thr: expected a positive threshold, got {args.c_thr}")
+        config = replace(config, c_thr=args.c_thr)
+    if _positive("--stride", args.stride) is not None:
+        config = replace(config, stride=args.stride, pixel_spacing_m=0.0)
+    return model, config
+
+
+def run_detect(args: argparse.Namespace) -> int:
+    import cv2
+    from tqdm import tqdm
+
+    from tracker.fingertips import detect_fingertips, fingertips_output
+    from tracker.fingertips.sequence import open_depth_sequence
+
+    model, config = _load_model(args)
+    sequence = open_depth_sequence(args.input)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if not args.sheet:
+        (out / "overlay").mkdir(exist_ok=True)
+    tiles = []
+    elapsed = 0.0
+    with open(out / "fingertips.jsonl", "w") as stream:
+        for frame in tqdm(sequence.frames, desc="detect", unit="frame"):
+            depth = sequence.read_depth(frame)
+            started = time.perf_counter()
+            detections = detect_fingertips(depth, sequence.intrinsics, model, config=config)
+            elapsed += time.perf_counter() - started
+            record = {"frame": frame, "fingertips": fingertips_output(detections)}
+            stream.write(json.dumps(record) + "\n")
+            picture = overlay(depth, detections)
+            if args.sheet:
+                tiles.append(picture)
+            else:
+                cv2.imwrite(str(out / "overlay" / f"{frame:06d}.png"), picture[..., ::-1])
+    if args.sheet:
+        cv2.imwrite(str(out / "contact_sheet.png"), contact_sheet(tiles)[..., ::-1])
+    n = len(sequence.frames)
+    count = sum(1 for _ in open(out / "fingertips.jsonl"))
+    print(
+        f"wrote {out / 'fingertips.jsonl'} ({count} frames, "
+        f"{1000 * elapsed / max(n, 1):.1f} ms per frame) and "
+        + ("contact_sheet.png" if args.sheet else "overlay/NNNNNN.png")
+    )
+    return 0
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from tracker.fingertips.evaluation import evaluate_detector, read_annotated_depth
+
+    root = Path(args.input)
+    name = args.annotations
+    if name is None:
+        name = (
+            "annotations.jsonl" if (root / "annotations.jsonl").is_file() else "groundtruth.jsonl"
+        )
+    model, config = _load_model(args)
+    data = read_annotated_depth(root, annotations=name)
+    metrics = evaluate_detector(data, model, config=config, progress=tqdm)
+    result = {
+        "frames": metrics.frames,
+        "detections": metrics.detections,
+        "annotated_tips": metrics.annotated_tips,
+        "precision": metrics.precision_15mm,
+        "recall": metrics.recall_15mm,
+        "error_mm_mean": metrics.error_3d_mm,
+        "error_px_mean": metrics.error_2d_px,
+        "recall_at_10px": metrics.recall_10px,
+        "error_px_ungated_mean": metrics.error_2d_px_ungated,
+        "ms_per_frame": metrics.ms_per_frame,
+        "annotations": name,
+        "model": str(args.model or "default"),
+        "detector": config.as_dict(),
+    }
+    if args.json:
+        print(json.dumps({k: _finite_or_none(v) for k, v in result.items()}))
+        return 0
+    print(
+        f"{metrics.frames} frames, {metrics.annotated_tips} annotated tips, "
+        f"{metrics.detections} detections\n"
+        f"precision {metrics.precision_15mm:.3f}, recall {metrics.recall_15mm:.3f} (15 mm)\n"
+        f"mean error of matched detections: {metrics.error_3d_mm:.1f} mm, "
+        f"{metrics.error_2d_px:.1f} px\n"
+        f"recall at 10 px {metrics.recall_10px:.3f}; mean 2D error without a gate "
+        f"{metrics.error_2d_px_ungated:.1f} px\n"
+        f"{metrics.ms_per_frame:.1f} ms per frame",
+        file=sys.stdout,
+    )
+    return 0
+
+
+def _finite_or_none(value: Any) -> Any:
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def overlay(depth_m: Any, detections: Any) -> Any:
+    """``(H, W, 3) uint8`` RGB: depth in gray (near bright) with the detections circled.
+
+    Circle radius grows with confidence; a named finger is labelled.
+    """
+    import cv2
+    import numpy as np
+
+    valid = depth_m > 0
+    picture = np.zeros(depth_m.shape + (3,), np.uint8)
+    if valid.any():
+        near, far = np.percentile(depth_m[valid], [1, 99])
+        scaled = 1.0 - np.clip((depth_m - near) / max(far - near, 1e-6), 0.0, 1.0)
+        gray = (40 + 200 * scaled).astype(np.uint8)
+        picture[valid] = gray[valid][:, None]
+    for d in detections:
+        centre = (round(d.u_px), round(d.v_px))
+        radius = max(3, round(2 + 2 * math.log1p(d.confidence)))
+        cv2.circle(picture, centre, radius, (255, 40, 40), 2, cv2.LINE_AA)
+        if d.finger:
+            cv2.putText(picture, d.finger[:2], centre, 0, 0.4, (255, 220, 0), 1, cv2.LINE_AA)
+    return picture
+
+
+def contact_sheet(tiles: list[Any], columns: int = 6) -> Any:
+    """Tiles of equal size in rows of ``columns``, padded with black."""
+    import numpy as np
+
+    height, width = tiles[0].shape[:2]
+    rows = math.ceil(len(tiles) / columns)
+    sheet = np.zeros((rows * height, min(columns, len(tiles)) * width, 3), np.uint8)
+    for k, tile in enumerate(tiles):
+        r, c = divmod(k, columns)
+        sheet[r * height : (r + 1) * height, c * width : (c + 1) * width] = tile
+    return sheet

@@ -1,0 +1,127 @@
+"""Rendered fingertip data: visibility of tips, mirroring, planes, the folder writer."""
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from builder.fingertip_data import (
+    FingertipDataConfig,
+    FingertipExample,
+    Scene,
+    generate_examples,
+    load_data_config,
+    mirror_example,
+    visible_tips,
+    write_annotated_folder,
+)
+from glovedb.hand_model import FINGERTIP_KEYPOINTS
+from tracker.fingertips.evaluation import read_annotated_depth
+from tracker.fingertips.features import project
+
+INTRINSICS = np.array([100.0, 100.0, 15.5, 11.5])
+CLEAN = FingertipDataConfig(n_images=4, noise=("none",), seed=3)
+
+
+def test_visible_tips_known_cases() -> None:
+    depth = np.zeros((24, 32), np.float32)
+    depth[10:14, :] = 0.5
+    tips = np.array(
+        [
+            [0.0, 0.0, 0.51],  # pixel (15.5, 11.5) reads 0.5: 1 cm in front, visible
+            [0.0, 0.0, 0.53],  # 3 cm behind the surface: hidden
+            [0.0, -0.04, 0.5],  # row 3.5, nothing rendered there: visible
+            [1.0, 0.0, 0.5],  # outside the image
+            [0.0, 0.0, -0.2],  # behind the camera
+        ]
+    )
+    out = visible_tips(depth, tips, INTRINSICS, tolerance_m=0.015)
+    assert out.dtype == np.float64
+    np.testing.assert_array_equal(np.isnan(out[:, 0]), [False, True, False, True, True])
+    np.testing.assert_array_equal(out[0], tips[0])
+
+
+def test_mirroring_maps_points_to_mirrored_pixels() -> None:
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(0.3, 0.6, (24, 32)).astype(np.float32)
+    points = np.array([[0.01, 0.02, 0.4], [-0.03, 0.0, 0.5]])
+    flipped, camera, mirrored = mirror_example(depth, INTRINSICS, points)
+    np.testing.assert_array_equal(flipped, depth[:, ::-1])
+    np.testing.assert_allclose(camera, [100.0, 100.0, 31 - 15.5, 11.5])
+    uv, uv_mirrored = project(points, INTRINSICS), project(mirrored, camera)
+    np.testing.assert_allclose(uv_mirrored[:, 0], 31 - uv[:, 0])
+    np.testing.assert_allclose(uv_mirrored[:, 1], uv[:, 1])
+
+
+def test_config_checks_and_toml(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="noise"):
+        FingertipDataConfig(noise=("kinect_v7",))
+    with pytest.raises(ValueError, match="distance_range_m"):
+        FingertipDataConfig(distance_range_m=(1.0, 0.5))
+    path = tmp_path / "data.toml"
+    path.write_text('[data]\nn_images = 7\nnoise = ["none"]\n')
+    assert load_data_config(path) == FingertipDataConfig(n_images=7, noise=("none",))
+    path.write_text("[data]\nn_imgs = 7\n")
+    with pytest.raises(ValueError, match="n_imgs"):
+        load_data_config(path)
+
+
+def _toy_example(frame: int) -> FingertipExample:
+    depth = np.zeros((24, 32), np.float32)
+    depth[5:20, 5:25] = 0.4 + 0.001 * frame
+    keypoints = np.tile([0.0, 0.0, 0.4], (21, 1))
+    tips = keypoints[list(FINGERTIP_KEYPOINTS)].copy()
+    tips[2:] = np.nan
+    scene = Scene(
+        np.zeros(20), np.eye(3), np.array([0, 0, 0.4]), 0.19, None, None, False, "none", False
+    )
+    return FingertipExample(depth, INTRINSICS, tips, keypoints, scene)
+
+
+def test_folder_writer_round_trip(tmp_path: Path) -> None:
+    count = write_annotated_folder([_toy_example(k) for k in range(3)], tmp_path)
+    assert count == 3
+    data = read_annotated_depth(tmp_path)
+    np.testing.assert_allclose(data.depth_m[2, 10, 10], 0.402, atol=1e-6)
+    np.testing.assert_allclose(data.intrinsics, INTRINSICS)
+    assert np.isfinite(data.tips_m[:, :2]).all() and np.isnan(data.tips_m[:, 2:]).all()
+    truth = [json.loads(line) for line in (tmp_path / "groundtruth.jsonl").read_text().splitlines()]
+    assert len(truth) == 3 and len(truth[0]["keypoints_3d_m"]) == 21
+    other = _toy_example(0)
+    other = replace(other, intrinsics=INTRINSICS + 1)
+    with pytest.raises(ValueError, match="same camera"):
+        write_annotated_folder([_toy_example(0), other], tmp_path / "mixed")
+
+
+@pytest.mark.gl
+def test_rendered_tips_are_nan_exactly_when_hidden(renderer) -> None:
+    examples = list(generate_examples(CLEAN, renderer))
+    assert len(examples) == CLEAN.n_images
+    n_visible = n_hidden = 0
+    for example in examples:
+        assert example.depth_m.dtype == np.float32 and example.tips_m.shape == (5, 3)
+        height, width = example.depth_m.shape
+        truth = example.keypoints_m[list(FINGERTIP_KEYPOINTS)]
+        uv = np.rint(project(truth, example.intrinsics)).astype(int)
+        for tip, (u, v), point in zip(example.tips_m, uv, truth, strict=True):
+            inside = 0 <= u < width and 0 <= v < height and point[2] > 0
+            seen = inside and not 0 < example.depth_m[v, u] < point[2] - 0.015
+            assert np.isfinite(tip).all() == seen
+            n_visible += seen
+            n_hidden += not seen
+    assert n_visible > 0
+
+
+@pytest.mark.gl
+def test_mirrored_examples_are_flipped_copies(renderer) -> None:
+    config = replace(CLEAN, n_images=2, half_resolution_fraction=0.0, plane_probability=1.0)
+    right = list(generate_examples(replace(config, mirror_probability=0.0), renderer))
+    left = list(generate_examples(replace(config, mirror_probability=1.0), renderer))
+    for a, b in zip(right, left, strict=True):
+        assert not a.scene.mirrored and b.scene.mirrored
+        np.testing.assert_array_equal(b.depth_m, a.depth_m[:, ::-1])
+        np.testing.assert_allclose(b.tips_m, a.tips_m * [-1.0, 1.0, 1.0])
+        width = a.depth_m.shape[1]
+        np.testing.assert_allclose(b.intrinsics[2], width - 1 - a.intrinsics[2])

@@ -1,0 +1,115 @@
+"""``glove fingertips``: exit codes, one JSON object, detect outputs, train on a tiny set."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from glove_cli.main import main
+
+REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real_depth" / "hmodel_andrii"
+EVAL_KEYS = {
+    "frames",
+    "precision",
+    "recall",
+    "error_mm_mean",
+    "error_px_mean",
+    "recall_at_10px",
+    "ms_per_frame",
+}
+
+
+def _write_folder(root: Path, n_frames: int = 2) -> None:
+    """A tiny annotated folder: a box with a 'finger' sticking up, tips annotated."""
+    (root / "depth").mkdir(parents=True)
+    intrinsic = {"width": 80, "height": 60, "intrinsic_matrix": [70, 0, 0, 0, 70, 0, 39.5, 29.5, 1]}
+    (root / "intrinsic.json").write_text(json.dumps(intrinsic))
+    records = []
+    for frame in range(n_frames):
+        depth = np.zeros((60, 80), np.uint16)
+        depth[30:55, 20:60] = 400
+        depth[10:30, 36:42] = 390
+        cv2.imwrite(str(root / "depth" / f"{frame:06d}.png"), depth)
+        tip = {"xyz_m": [0.0, -0.11, 0.39], "uv_px": [39.5, 10.0]}
+        records.append({"frame": frame, "fingertips": {"index": tip}})
+    (root / "annotations.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+
+
+def run_glove(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "glove_cli", *args], capture_output=True, text=True, timeout=300
+    )
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["fingertips"], "ACTION"),
+        (["fingertips", "eval", "/no/such/folder"], "/no/such/folder"),
+        (["fingertips", "detect", "/no/such/folder", "--out", "x"], "not a folder"),
+        (["fingertips", "eval", ".", "--model", "/no/model.npz"], "no such model file"),
+        (["fingertips", "train", "/no/config.toml", "--out", "m.npz"], "cannot read config"),
+        (["fingertips", "synth", "x.toml", "--out", "d", "--noise", "loud"], "invalid choice"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line(capsys, args, message) -> None:
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert message in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_eval_json_prints_one_object(tmp_path: Path, capsys) -> None:
+    _write_folder(tmp_path)
+    assert main(["fingertips", "eval", str(tmp_path), "--json"]) == 0
+    out = capsys.readouterr().out
+    result = json.loads(out)
+    assert len(out.strip().splitlines()) == 1
+    assert EVAL_KEYS <= set(result)
+    assert result["frames"] == 2 and result["annotated_tips"] == 2
+
+
+def test_detect_writes_a_record_and_an_overlay_per_frame(tmp_path: Path, capsys) -> None:
+    _write_folder(tmp_path / "seq", n_frames=3)
+    out = tmp_path / "out"
+    assert main(["fingertips", "detect", str(tmp_path / "seq"), "--out", str(out)]) == 0
+    records = [json.loads(line) for line in (out / "fingertips.jsonl").read_text().splitlines()]
+    assert [r["frame"] for r in records] == [0, 1, 2]
+    for record in records:
+        for tip in record["fingertips"]:
+            assert set(tip) == {"finger", "u_px", "v_px", "x_m", "y_m", "z_m", "confidence"}
+    assert len(list((out / "overlay").glob("*.png"))) == 3
+    assert main(["fingertips", "detect", str(tmp_path / "seq"), "--out", str(out), "--sheet"]) == 0
+    assert cv2.imread(str(out / "contact_sheet.png")).shape == (60, 3 * 80, 3)
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="shared real depth data not available")
+def test_eval_on_the_real_frames(capsys) -> None:
+    assert main(["fingertips", "eval", str(REAL), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["frames"] == 11 and result["annotated_tips"] == 55
+    assert result["recall_at_10px"] > 0.2
+
+
+@pytest.mark.gl
+def test_train_and_synth_on_a_tiny_config(tmp_path: Path) -> None:
+    config = tmp_path / "tiny.toml"
+    config.write_text(
+        "[data]\nn_images = 6\nseed = 2\nhalf_resolution_fraction = 0.0\n"
+        "[training]\nn_features = 20\npixels_per_image = 200\nn_trees = 2\nmax_depth = 6\n"
+        "depth_band_m = 0.2\n[detector]\nc_thr = 2.0\n"
+    )
+    model = tmp_path / "tiny.npz"
+    result = run_glove("fingertips", "train", str(config), "--out", str(model), "--noise", "none")
+    assert result.returncode == 0, result.stderr
+    folder = tmp_path / "synth"
+    result = run_glove("fingertips", "synth", str(config), "--out", str(folder), "--images", "2")
+    assert result.returncode == 0, result.stderr
+    result = run_glove("fingertips", "eval", str(folder), "--model", str(model), "--json")
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["frames"] == 2
+    assert json.loads(result.stdout)["detector"]["depth_band_m"] == 0.2

@@ -1,0 +1,53 @@
+"""The shipped model: loads without scikit-learn and finds the tips of a rendered hand."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from tracker.fingertips import detect_fingertips, load_forest, model_detector_config
+from tracker.fingertips.forest import DEFAULT_MODEL_PATH
+
+
+def test_shipped_model_loads_and_is_small() -> None:
+    assert DEFAULT_MODEL_PATH.is_file()
+    assert DEFAULT_MODEL_PATH.stat().st_size < 6e6
+    model = load_forest()
+    config = model_detector_config(model)
+    assert model.n_trees >= 1 and config.c_thr > 0 and np.isfinite(config.depth_band_m)
+    assert "data" in model.settings and model.version
+
+
+def test_shipped_model_needs_no_scikit_learn() -> None:
+    code = (
+        "import sys, numpy as np\n"
+        "sys.modules['sklearn'] = None\n"  # importing scikit-learn now fails
+        "from tracker.fingertips import detect_fingertips, load_forest\n"
+        "model = load_forest()\n"
+        "depth = np.zeros((48, 64), np.float32); depth[10:40, 20:40] = 0.5\n"
+        "detect_fingertips(depth, (60.0, 60.0, 31.5, 23.5), model)\n"
+        "assert 'pyrender' not in sys.modules and 'builder' not in sys.modules\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+
+
+@pytest.mark.gl
+def test_shipped_model_finds_the_tips_of_a_rendered_open_hand(renderer) -> None:
+    from glovedb.camera import KINECT_V1
+    from glovedb.hand_model import FINGERTIP_KEYPOINTS, forward_kinematics
+    from glovedb.postures import named_posture
+    from glovedb.views import named_view
+
+    posture = named_posture("open")
+    skeleton = renderer.mesh.skeleton
+    rotation, translation = named_view("palm", 0.45, skeleton.hand_length_m)
+    depth = renderer.render_labels(posture, rotation, translation).depth_m
+    keypoints = forward_kinematics(posture, skeleton).keypoints_m[0] @ rotation.T + translation
+    tips = keypoints[list(FINGERTIP_KEYPOINTS)]
+    camera = (KINECT_V1.fx, KINECT_V1.fy, KINECT_V1.cx, KINECT_V1.cy)
+    model = load_forest()
+    detections = detect_fingertips(depth, camera, model, config=model_detector_config(model))
+    found = [np.linalg.norm(tips - (d.x_m, d.y_m, d.z_m), axis=1).min() for d in detections]
+    assert sum(distance < 0.015 for distance in found) >= 3

@@ -1,0 +1,113 @@
+"""Reading the depth frames of an RGB-D folder (CONVENTIONS.md layout).
+
+``SEQ/intrinsic.json`` (Open3D JSON), ``SEQ/depth/NNNNNN.png`` (uint16 in
+``depth_scale`` units per metre, 0 = missing) and an optional ``SEQ/meta.json`` with
+``depth_scale`` (default 1000). Color is not needed for fingertip detection.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class DepthSequence:
+    """The depth frames of a folder, read on demand.
+
+    Attributes
+    ----------
+    folder : Path
+    intrinsics : (4,) float64
+        ``(fx, fy, cx, cy)`` in pixels.
+    size : tuple of int
+        Image ``(width, height)`` from ``intrinsic.json``.
+    depth_scale : float
+        Depth units per metre in the PNG files.
+    frames : tuple of int
+        Frame numbers, from the depth file names, ascending.
+    """
+
+    folder: Path
+    intrinsics: NDArray[np.float64]
+    size: tuple[int, int]
+    depth_scale: float
+    frames: tuple[int, ...]
+
+    def depth_path(self, frame: int) -> Path:
+        """Path of the depth PNG of ``frame``."""
+        return self.folder / "depth" / f"{frame:06d}.png"
+
+    def read_depth(self, frame: int) -> NDArray[np.float32]:
+        """Depth of ``frame`` as ``(H, W) float32`` metres, 0 where missing.
+
+        Raises
+        ------
+        ValueError
+            If the file is missing or not a 16-bit image.
+        """
+        path = self.depth_path(frame)
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if image is None or image.dtype != np.uint16 or image.ndim != 2:
+            raise ValueError(f"{path}: expected a 16-bit single-channel depth PNG")
+        return image.astype(np.float32) / np.float32(self.depth_scale)
+
+
+def read_intrinsics(folder: str | os.PathLike[str]) -> tuple[NDArray[np.float64], tuple[int, int]]:
+    """``(fx, fy, cx, cy)`` and ``(width, height)`` from a folder's ``intrinsic.json``.
+
+    Raises
+    ------
+    ValueError
+        If the file is missing or malformed.
+    """
+    path = Path(folder) / "intrinsic.json"
+    try:
+        data = json.loads(path.read_text())
+        matrix = [float(x) for x in data["intrinsic_matrix"]]
+        size = (int(data["width"]), int(data["height"]))
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise ValueError(f"{path}: cannot read camera intrinsics ({error})") from error
+    if len(matrix) != 9:
+        raise ValueError(f"{path}: intrinsic_matrix must have 9 numbers")
+    # Open3D writes the 3x3 matrix column-major: fx at 0, fy at 4, cx at 6, cy at 7.
+    return np.array([matrix[0], matrix[4], matrix[6], matrix[7]]), size
+
+
+def read_depth_scale(folder: str | os.PathLike[str]) -> float:
+    """``depth_scale`` of a folder's ``meta.json`` (1000 when there is none)."""
+    path = Path(folder) / "meta.json"
+    if not path.is_file():
+        return 1000.0
+    try:
+        scale = float(json.loads(path.read_text()).get("depth_scale", 1000.0))
+    except (ValueError, TypeError, AttributeError) as error:
+        raise ValueError(f"{path}: cannot read depth_scale ({error})") from error
+    if not scale > 0:
+        raise ValueError(f"{path}: depth_scale must be positive, got {scale}")
+    return scale
+
+
+def open_depth_sequence(folder: str | os.PathLike[str]) -> DepthSequence:
+    """Index the depth frames of an RGB-D folder.
+
+    Raises
+    ------
+    ValueError
+        If the folder has no ``intrinsic.json`` or no ``depth/NNNNNN.png`` frames.
+    """
+    root = Path(folder)
+    if not root.is_dir():
+        raise ValueError(f"{root}: not a folder")
+    intrinsics, size = read_intrinsics(root)
+    names = sorted((root / "depth").glob("*.png")) if (root / "depth").is_dir() else []
+    frames = tuple(int(p.stem) for p in names if p.stem.isdigit())
+    if not frames:
+        raise ValueError(f"{root}: no depth/NNNNNN.png frames")
+    return DepthSequence(root, intrinsics, size, read_depth_scale(root), frames)
