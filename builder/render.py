@@ -18,7 +18,6 @@ import os
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 from dataclasses import dataclass
-from types import TracebackType
 from typing import Any
 
 import numpy as np
@@ -26,6 +25,7 @@ import pyrender
 from numpy.typing import ArrayLike, NDArray
 from OpenGL import GL
 
+from glovedb._closing import Closing
 from glovedb._validate import as_array
 from glovedb.camera import CameraIntrinsics
 from glovedb.hand_model import N_JOINTS
@@ -152,7 +152,7 @@ class Rendering(LabelRendering):
     color: NDArray[np.uint8]
 
 
-class GloveRenderer:
+class GloveRenderer(Closing):
     """Renders the skinned glove hand for one camera; reuse it across many calls.
 
     Parameters
@@ -288,17 +288,6 @@ class GloveRenderer:
         if self._renderer is not None:
             self._renderer.delete()
             self._renderer = None
-
-    def __enter__(self) -> GloveRenderer:
-        return self
-
-    def __exit__(
-        self,
-        kind: type[BaseException] | None,
-        value: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        self.close()
 
     def _live_renderer(self) -> _OffscreenRenderer:
         if self._renderer is None:

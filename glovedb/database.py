@@ -16,13 +16,13 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 import h5py
 import numpy as np
 from numpy.typing import NDArray
 
+from glovedb._closing import Closing
 from glovedb._validate import as_array
 
 FORMAT_NAME = "glove-posture-db"
@@ -71,7 +71,7 @@ def image_dataset_options(size: int, entries: int) -> dict[str, Any]:
     return {}
 
 
-class GloveDatabase:
+class GloveDatabase(Closing):
     """A posture database opened for reading.
 
     Parameters
@@ -194,17 +194,6 @@ class GloveDatabase:
     def close(self) -> None:
         """Close the file."""
         self._file.close()
-
-    def __enter__(self) -> GloveDatabase:
-        return self
-
-    def __exit__(
-        self,
-        kind: type[BaseException] | None,
-        value: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def open_database_file(path: Path) -> h5py.File:

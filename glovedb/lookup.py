@@ -12,11 +12,11 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
 
 import numpy as np
 from numpy.typing import NDArray
 
+from glovedb._closing import Closing
 from glovedb.database import GloveDatabase
 from glovedb.search import (
     CascadeStage,
@@ -54,7 +54,7 @@ class Lookup:
     posture_ids: NDArray[np.int64]
 
 
-class DatabaseIndex:
+class DatabaseIndex(Closing):
     """Search structures of one database file.
 
     Parameters
@@ -181,17 +181,6 @@ class DatabaseIndex:
     def close(self) -> None:
         self._rows.clear()
         self._database.close()
-
-    def __enter__(self) -> DatabaseIndex:
-        return self
-
-    def __exit__(
-        self,
-        kind: type[BaseException] | None,
-        value: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def _mapped_images(database: GloveDatabase, size: int) -> NDArray[np.uint8]:

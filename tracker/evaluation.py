@@ -627,3 +627,25 @@ def save_error_plot(path: str | Path, picture: NDArray[np.uint8]) -> Path:
     if not cv2.imwrite(str(path), np.ascontiguousarray(picture[..., ::-1])):
         raise ValueError(f"{path}: could not write the picture")
     return path
+
+
+def report_run(
+    sequence: str | Path,
+    poses_path: str | Path,
+    out: str | Path,
+    *,
+    fps: float,
+    title: str = "",
+    thumbnails: int = 6,
+) -> EvaluationResult:
+    """Score a tracking run of a synthetic sequence and write ``errors.csv`` and
+    ``errors.png`` (error curves with keyframe thumbnails) into ``out``."""
+    sequence, out = Path(sequence), Path(out)
+    result = evaluate(poses_path, sequence / "groundtruth.jsonl")
+    write_errors_csv(result.per_frame, out / "errors.csv")
+    keyframes = keyframe_indices(len(result.per_frame.frames), thumbnails)
+    picture = error_plot(
+        result.per_frame, fps=fps, thumbnails=read_thumbnails(sequence, keyframes), title=title
+    )
+    save_error_plot(out / "errors.png", picture)
+    return result

@@ -24,12 +24,12 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from glovedb._closing import Closing
 from glovedb.camera import CameraIntrinsics
 from glovedb.hand_model import FINGERS, FINGERTIP_KEYPOINTS, forward_kinematics, make_skeleton
 from glovedb.lookup import DEFAULT_CASCADE, DatabaseIndex
@@ -159,7 +159,7 @@ class PoseSmoother:
         )
 
 
-class Tracker:
+class Tracker(Closing):
     """Tracks the glove hand frame after frame with one posture database.
 
     Parameters
@@ -313,17 +313,6 @@ class Tracker:
 
     def close(self) -> None:
         self.index.close()
-
-    def __enter__(self) -> Tracker:
-        return self
-
-    def __exit__(
-        self,
-        kind: type[BaseException] | None,
-        value: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def _ray_rotation(intrinsics: CameraIntrinsics, pixel: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -79,14 +79,7 @@ def run(args: argparse.Namespace) -> int:
 
     from builder.sequence import SequenceSettings, render_sequence
     from glove_cli.commands.track import progress_bar
-    from tracker.evaluation import (
-        error_plot,
-        evaluate,
-        keyframe_indices,
-        read_thumbnails,
-        save_error_plot,
-        write_errors_csv,
-    )
+    from tracker.evaluation import report_run
     from tracker.pipeline import Tracker
     from tracker.run import POSES_FILE, track_source
     from tracker.sources import open_source
@@ -111,15 +104,8 @@ def run(args: argparse.Namespace) -> int:
         summary = track_source(
             open_source(sequence), tracker, tracking, progress=progress_bar("tracking")
         )
-    result = evaluate(tracking / POSES_FILE, sequence / "groundtruth.jsonl")
-    write_errors_csv(result.per_frame, out / "errors.csv")
-    keyframes = keyframe_indices(len(result.per_frame.frames), 6)
-    picture = error_plot(
-        result.per_frame, fps=30.0, thumbnails=read_thumbnails(sequence, keyframes),
-        title=f"{args.trajectory}, DB_open+pinch+power",
-    )  # fmt: skip
-    save_error_plot(out / "errors.png", picture)
-
+    title = f"{args.trajectory}, DB_open+pinch+power"
+    result = report_run(sequence, tracking / POSES_FILE, out, fps=30.0, title=title)
     figures = result.as_dict()
     print()
     print(f"{result.frames} frames, hand found in {summary.found}, {result.missed_frames} missed")

@@ -27,14 +27,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from tracker.evaluation import (
-        error_plot,
-        evaluate,
-        keyframe_indices,
-        read_thumbnails,
-        save_error_plot,
-        write_errors_csv,
-    )
+    from tracker.evaluation import report_run
     from tracker.run import POSES_FILE, track_source
     from tracker.sources import open_source
 
@@ -46,15 +39,8 @@ def run(args: argparse.Namespace) -> int:
     source = open_source(sequence)
     with make_tracker(args) as tracker:
         summary = track_source(source, tracker, out, bvh=False, progress=progress_bar("evaluating"))
-    result = evaluate(out / POSES_FILE, truth)
-    write_errors_csv(result.per_frame, out / "errors.csv")
-    fps = source.fps or 30.0
-    keyframes = keyframe_indices(len(result.per_frame.frames), 6)
-    picture = error_plot(
-        result.per_frame, fps=fps, thumbnails=read_thumbnails(sequence, keyframes),
-        title=f"{sequence.name} with {Path(args.db).name}",
-    )  # fmt: skip
-    save_error_plot(out / "errors.png", picture)
+    title = f"{sequence.name} with {Path(args.db).name}"
+    result = report_run(sequence, out / POSES_FILE, out, fps=source.fps or 30.0, title=title)
     figures = {**result.as_dict(), "fps": round(summary.fps, 2),
                "timing_ms": summary.timing.as_dict(), "outputs": str(out)}  # fmt: skip
     if args.json:
