@@ -14,6 +14,7 @@ from helpers import SMALL_DATABASE
 
 from builder.build import PostureRenderer, build_database, make_plan
 from builder.config import config_from_dict, load_config
+from glovedb.chamfer import symmetric_distance
 from glovedb.database import GloveDatabase
 from glovedb.postures import named_posture
 from glovedb.resources import config_path
@@ -132,8 +133,11 @@ def test_rolling_pixels_equals_rendering_a_rolled_camera():
             )[0]
             direct = tiny_images(rendered)
             for size in (8, 16, 32, 64):
-                mismatch = np.mean(direct[size] != rolled[size][view])
-                assert mismatch < 0.06, f"view {view} size {size}: {mismatch:.1%} differ"
+                # Aliasing moves silhouettes and patch borders by under a pixel: the
+                # mean distance to the same color in the other image stays below one.
+                distance = float(symmetric_distance(direct[size], rolled[size][view]))
+                assert distance < 0.75, f"view {view} size {size}: {distance:.2f} px apart"
+                assert np.mean(direct[size] != rolled[size][view]) < 0.1
     finally:
         renderer.close()
 
