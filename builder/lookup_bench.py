@@ -124,6 +124,14 @@ def brute_force_errors(index: DatabaseIndex, query: NDArray[np.uint8]) -> NDArra
     return errors
 
 
+def exact_nearest_errors(
+    database: str, query_images: list[dict[int, NDArray[np.uint8]]], size: int
+) -> NDArray[np.float64]:
+    """The smallest error of any entry of the file for each query at ``size`` (brute force)."""
+    with DatabaseIndex(database, resident_sizes=()) as index:
+        return np.array([float(brute_force_errors(index, q[size]).min()) for q in query_images])
+
+
 def run_lookup_benchmark(
     database: str,
     *,
@@ -132,34 +140,41 @@ def run_lookup_benchmark(
     queries: int = 20,
     workers: int | None = None,
     seed: int = _QUERY_SEED,
+    query_images: list[dict[int, NDArray[np.uint8]]] | None = None,
+    exact_errors: NDArray[np.float64] | None = None,
 ) -> LookupBenchmark:
-    """Time ``queries`` held-out lookups and score them against brute force."""
-    query_images = held_out_queries(queries, seed=seed)
+    """Time held-out lookups and score them against brute force.
+
+    ``query_images`` and ``exact_errors`` (from :func:`held_out_queries` and
+    :func:`exact_nearest_errors` at the cascade's last size) may be passed in to reuse
+    them across runs; by default they are made here.
+    """
+    if query_images is None:
+        query_images = held_out_queries(queries, seed=seed)
+    last = parse_cascade(cascade)[-1]
+    if exact_errors is None:
+        exact_errors = exact_nearest_errors(database, query_images, last.size)
     with DatabaseIndex(database, tile_to=entries) as index:
-        stages = parse_cascade(cascade, sizes=index.resolutions)
+        parse_cascade(cascade, sizes=index.resolutions)
         index.search(query_images[0], cascade, workers=workers)  # warm-up: compile, map pages
         latencies, stage_times, ranks = [], [], []
-        last = stages[-1].size
-        for query in query_images:
+        for query, best in zip(query_images, exact_errors, strict=True):
             started = time.perf_counter()
             result = index.search(query, cascade, workers=workers)
             latencies.append((time.perf_counter() - started) * 1000.0)
             stage_times.append(result.stage_ms)
-            truth = brute_force_errors(index, query[last])
-            best = float(truth.min())
             # The exact nearest error: a returned entry with that error is a hit (ties).
             hits = np.flatnonzero(np.isclose(result.errors, best, rtol=0, atol=1e-5))
-            ranks.append(int(hits[0]) + 1 if len(hits) else stages[-1].k + 1)
-        rss_mb = _resident_mb()
+            ranks.append(int(hits[0]) + 1 if len(hits) else last.k + 1)
         return LookupBenchmark(
             entries=index.entries,
             base_entries=index.base_entries,
             cascade=cascade,
-            queries=queries,
+            queries=len(query_images),
             latency_ms=np.array(latencies),
             stage_ms=np.array(stage_times),
             ranks=np.array(ranks),
-            rss_mb=rss_mb,
+            rss_mb=_resident_mb(),
         )
 
 

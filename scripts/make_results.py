@@ -23,7 +23,7 @@ import numpy as np
 import glovedb
 from builder.build import build_database
 from builder.config import load_config
-from builder.lookup_bench import run_lookup_benchmark
+from builder.lookup_bench import exact_nearest_errors, held_out_queries, run_lookup_benchmark
 from builder.sequence import SequenceSettings, render_sequence
 from glovedb.resources import config_path
 from tracker.evaluation import evaluate
@@ -245,10 +245,17 @@ def lookup_scaling(work: Path, queries: int, lines: list[str]) -> None:
         "| entries | cascade | median ms | p95 ms | recall top-1 | resident MB |",
         "|---|---|---|---|---|---|",
     ]
+    queries_images = held_out_queries(queries)
+    exact = {size: exact_nearest_errors(str(base), queries_images, size) for size in (32, 64)}
     for entries in SCALING_ENTRIES:
         for cascade in SCALING_CASCADES:
+            last = int(cascade.rsplit(",", 1)[-1].split(":")[0])
             figures = run_lookup_benchmark(
-                str(base), cascade=cascade, entries=entries, queries=queries
+                str(base),
+                cascade=cascade,
+                entries=entries,
+                query_images=queries_images,
+                exact_errors=exact[last],
             ).as_dict()
             latency = figures["latency_ms"]
             lines.append(
