@@ -1,0 +1,94 @@
+"""glove track / eval / build on bad input: exit code 2 and one line; no glove: no hand."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from glovedb.camera import CameraIntrinsics, save_intrinsics
+
+
+def run_glove(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "glove_cli", *args], capture_output=True, text=True, timeout=300
+    )
+
+
+def write_sequence(folder: Path, frames: int, *, color: int = 90, depth_mm: int = 0) -> Path:
+    camera = CameraIntrinsics(64, 48, 60.0, 60.0, 31.5, 23.5)
+    (folder / "color").mkdir(parents=True)
+    (folder / "depth").mkdir()
+    save_intrinsics(camera, folder / "intrinsic.json")
+    for index in range(frames):
+        cv2.imwrite(
+            str(folder / "color" / f"{index:06d}.png"), np.full((48, 64, 3), color, np.uint8)
+        )
+        cv2.imwrite(
+            str(folder / "depth" / f"{index:06d}.png"), np.full((48, 64), depth_mm, np.uint16)
+        )
+    return folder
+
+
+def assert_one_line_error(result: subprocess.CompletedProcess, text: str) -> None:
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and text in lines[0] and "Traceback" not in result.stderr
+
+
+@pytest.mark.gl
+def test_frames_without_a_glove_give_no_hand_on_every_frame(small_database, tmp_path):
+    for name, depth in (("bare", 700), ("no_depth", 0)):
+        sequence = write_sequence(tmp_path / name, 3, depth_mm=depth)
+        out = tmp_path / f"{name}_out"
+        result = run_glove(
+            "track", str(sequence), "--db", str(small_database), "--out", str(out), "--json"
+        )
+        assert result.returncode == 0, result.stderr
+        records = [json.loads(line) for line in (out / "poses.jsonl").read_text().splitlines()]
+        assert [r["frame"] for r in records] == [0, 1, 2]
+        assert not any(r["hand_found"] for r in records)
+        assert json.loads(result.stdout)["hand_found"] == 0
+
+
+@pytest.mark.gl
+def test_bad_databases_and_inputs_exit_2(small_database, tmp_path):
+    sequence = write_sequence(tmp_path / "seq", 2)
+    garbage = tmp_path / "garbage.h5"
+    garbage.write_bytes(b"not hdf5 at all")
+    truncated = tmp_path / "truncated.h5"
+    truncated.write_bytes(small_database.read_bytes()[:4000])
+    out = str(tmp_path / "out")
+    assert_one_line_error(
+        run_glove("track", str(sequence), "--db", str(garbage), "--out", out),
+        "not a readable HDF5 file",
+    )
+    assert_one_line_error(
+        run_glove("track", str(sequence), "--db", str(truncated), "--out", out),
+        "not a readable HDF5 file",
+    )
+    assert_one_line_error(
+        run_glove("track", str(tmp_path / "nowhere"), "--db", str(small_database), "--out", out),
+        "no such folder",
+    )
+    assert_one_line_error(
+        run_glove("eval", "--db", str(small_database), "--sequence", str(sequence)),
+        "no groundtruth.jsonl",
+    )
+    assert_one_line_error(
+        run_glove("build", str(tmp_path / "missing.toml"), "--out", out + ".h5"),
+        "cannot read the config",
+    )
+
+
+@pytest.mark.gl
+def test_a_corrupt_frame_stops_with_one_line_and_keeps_the_frames_before(small_database, tmp_path):
+    sequence = write_sequence(tmp_path / "seq", 3)
+    (sequence / "depth" / "000002.png").write_bytes(b"\x89PNG broken")
+    out = tmp_path / "out"
+    result = run_glove("track", str(sequence), "--db", str(small_database), "--out", str(out))
+    assert_one_line_error(result, "000002.png")
+    assert len((out / "poses.jsonl").read_text().splitlines()) == 2
