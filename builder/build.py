@@ -11,9 +11,10 @@ How a build stays safe when it is interrupted:
    reader refuses a file that is not marked complete.
 
 Workers are separate processes started with ``spawn`` (never ``fork``, because an
-OpenGL context must not cross a fork), each with its own renderer. Shards are
-assembled in posture order, so the output does not depend on the number of workers
-and two builds of one config give the same bytes.
+OpenGL context must not cross a fork), each with its own renderer; with
+``executor="ray"`` they are Ray actors on a cluster (``builder.ray_executor``). Shards
+are assembled in posture order, so the output depends neither on the number of workers
+nor on the executor, and two builds of one config give the same bytes.
 """
 
 from __future__ import annotations
@@ -26,9 +27,11 @@ import shutil
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import h5py
 import numpy as np
@@ -49,6 +52,9 @@ from glovedb.views import HAND_CENTRE, database_views, icosphere
 
 # Reach of the wrist cuff from the middle of the hand, in hand lengths.
 _CUFF_RADIUS = 0.66
+
+Executor = Literal["local", "ray"]
+EXECUTORS: tuple[Executor, ...] = ("local", "ray")
 
 
 @dataclass(frozen=True)
@@ -300,6 +306,8 @@ def build_database(
     workers: int = 1,
     resume: bool = False,
     progress: Callable[[Iterator[int], int], Iterator[int]] | None = None,
+    executor: Executor = "local",
+    address: str | None = None,
 ) -> BuildReport:
     """Build the database of ``config`` into ``out`` (see the module docstring).
 
@@ -309,12 +317,18 @@ def build_database(
     out : str or Path
         ``.h5`` file; replaced only when the new one is complete.
     workers : int
-        Worker processes; 1 renders in this process.
+        Worker processes; 1 renders in this process. With ``executor="ray"`` and no
+        ``address``: the CPUs of the local Ray instance.
     resume : bool
         Continue an interrupted build of the same settings.
     progress : callable, optional
         Wraps the iterator of finished posture indices (e.g. a tqdm bar); receives
         the iterator and the number of postures still to render.
+    executor : {"local", "ray"}
+        Render in local processes, or on Ray actors (``builder.ray_executor``).
+    address : str, optional
+        Ray cluster address (``HOST:PORT``, ``ray://HOST:PORT`` or ``"auto"``); None
+        starts a local Ray instance. Only with ``executor="ray"``.
 
     Returns
     -------
@@ -327,20 +341,26 @@ def build_database(
         raise ValueError(f"{out.parent}: folder does not exist")
     if workers < 1:
         raise ValueError(f"workers: expected at least 1, got {workers}")
+    if executor not in EXECUTORS:
+        raise ValueError(f"executor: expected one of {', '.join(EXECUTORS)}, got {executor!r}")
+    if address is not None and executor != "ray":
+        raise ValueError("address: a Ray cluster address needs the ray executor")
     started = time.perf_counter()
     plan = make_plan(config)
     parts = out.with_name(out.name + ".parts")
     settings = stored_settings(config)
-    _prepare_parts(parts, settings, resume)
-    pending = [p for p in range(len(plan.postures_rad)) if not shard_path(parts, p).exists()]
+    # Connect before touching the parts folder, so a bad address leaves nothing behind.
+    with _shard_renderer(executor, address, workers) as render_shards:
+        _prepare_parts(parts, settings, resume)
+        pending = [p for p in range(len(plan.postures_rad)) if not shard_path(parts, p).exists()]
 
-    render_started = time.perf_counter()
-    finished = _render_shards(plan, parts, pending, workers)
-    if progress is not None:
-        finished = progress(finished, len(pending))
-    for _ in finished:
-        pass
-    render_seconds = time.perf_counter() - render_started
+        render_started = time.perf_counter()
+        finished = render_shards(plan, parts, pending)
+        if progress is not None:
+            finished = progress(finished, len(pending))
+        for _ in finished:
+            pass
+        render_seconds = time.perf_counter() - render_started
 
     partial = out.with_name(out.name + ".partial")
     _assemble(plan, parts, partial, settings)
@@ -374,6 +394,20 @@ def _prepare_parts(parts: Path, settings: dict[str, Any], resume: bool) -> None:
         return
     parts.mkdir()
     settings_file.write_text(json.dumps(settings, indent=1, sort_keys=True))
+
+
+@contextmanager
+def _shard_renderer(
+    executor: Executor, address: str | None, workers: int
+) -> Iterator[Callable[[BuildPlan, Path, list[int]], Iterator[int]]]:
+    """The executor's ``render(plan, parts, pending)`` function, while it is open."""
+    if executor == "local":
+        yield partial(_render_shards, workers=workers)
+        return
+    from builder.ray_executor import ray_shard_renderer
+
+    with ray_shard_renderer(address, workers=workers) as render:
+        yield render
 
 
 def _render_shards(plan: BuildPlan, parts: Path, pending: list[int], workers: int) -> Iterator[int]:

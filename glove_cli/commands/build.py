@@ -22,7 +22,18 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--workers",
         type=int,
         default=os.cpu_count() or 1,
-        help="worker processes (default: all cores)",
+        help="worker processes, or the CPUs of the local Ray instance (default: all cores)",
+    )
+    parser.add_argument(
+        "--executor",
+        choices=("local", "ray"),
+        default="local",
+        help="render in local processes (default) or on Ray actors (pip install -e '.[ray]')",
+    )
+    parser.add_argument(
+        "--address",
+        help="Ray cluster address HOST:PORT, or 'auto' for the running cluster "
+        "(default: start a local Ray instance with --workers CPUs)",
     )
     parser.add_argument("--resume", action="store_true", help="continue an interrupted build")
     parser.add_argument(
@@ -48,8 +59,15 @@ def run(args: argparse.Namespace) -> int:
         )  # fmt: skip
 
     report = build_database(
-        config, args.out, workers=args.workers, resume=args.resume, progress=bar
+        config,
+        args.out,
+        workers=args.workers,
+        resume=args.resume,
+        progress=bar,
+        executor=args.executor,
+        address=args.address,
     )
+    where = f"{args.workers} worker(s)" if args.executor == "local" else "Ray"
     figures = {
         "path": report.path,
         "entries": report.entries,
@@ -58,13 +76,13 @@ def run(args: argparse.Namespace) -> int:
         "seconds": round(report.seconds, 2),
         "entries_per_second": round(report.entries_per_second, 1),
         "workers": args.workers,
+        "executor": args.executor,
     }
     if args.json:
         print(json.dumps(figures))
     else:
         print(
             f"wrote {report.path}: {report.entries:,} entries ({report.postures} postures) in "
-            f"{report.seconds:.1f} s, {report.entries_per_second:,.0f} entries/s on "
-            f"{args.workers} worker(s)"
+            f"{report.seconds:.1f} s, {report.entries_per_second:,.0f} entries/s on {where}"
         )
     return 0
