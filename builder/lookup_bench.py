@@ -35,7 +35,13 @@ _BRUTE_FORCE_CHUNK = 65_536
 
 @dataclass(frozen=True)
 class LookupBenchmark:
-    """Figures of one benchmark run (see :meth:`as_dict` for the JSON keys)."""
+    """Figures of one benchmark run (see :meth:`as_dict` for the JSON keys).
+
+    ``rss_mb`` is the resident memory that opening the database index and searching
+    it added to the process (the packed images, the entry tables, the mapped rows
+    touched); ``process_rss_mb`` is the whole process, which also holds the libraries
+    and the renderer that made the queries.
+    """
 
     entries: int
     base_entries: int
@@ -45,6 +51,7 @@ class LookupBenchmark:
     stage_ms: NDArray[np.float64]
     ranks: NDArray[np.int64]
     rss_mb: float
+    process_rss_mb: float
 
     def as_dict(self) -> dict[str, Any]:
         k = parse_cascade(self.cascade)[-1].k
@@ -63,6 +70,7 @@ class LookupBenchmark:
             "mean_rank_true_nn": round(float(np.mean(self.ranks)), 3),
             "rank_if_missed": k + 1,
             "rss_mb": round(self.rss_mb, 1),
+            "process_rss_mb": round(self.process_rss_mb, 1),
         }
 
 
@@ -110,14 +118,25 @@ def label_noise(labels: NDArray[np.uint8], rng: np.random.Generator) -> NDArray[
     return noisy
 
 
-def brute_force_errors(index: DatabaseIndex, query: NDArray[np.uint8]) -> NDArray[np.float32]:
-    """Directed distance of every (untiled) entry to a query image, chunk by chunk."""
+def brute_force_errors(
+    index: DatabaseIndex, query: NDArray[np.uint8], *, entries: int | None = None
+) -> NDArray[np.float32]:
+    """Directed distance of every distinct entry to a query image, chunk by chunk.
+
+    Parameters
+    ----------
+    index : DatabaseIndex
+    query : (s, s) uint8
+    entries : int, optional
+        Only the first ``entries`` entries of the file (a truncated database);
+        default all of them (tiling repeats them, so adds nothing).
+    """
     size = query.shape[0]
     maps = chamfer_maps(query)
-    base = np.arange(index.base_entries)
-    errors = np.empty(len(base), np.float32)
-    for start in range(0, len(base), _BRUTE_FORCE_CHUNK):
-        ids = base[start : start + _BRUTE_FORCE_CHUNK]
+    count = index.base_entries if entries is None else min(entries, index.base_entries)
+    errors = np.empty(count, np.float32)
+    for start in range(0, count, _BRUTE_FORCE_CHUNK):
+        ids = np.arange(start, min(count, start + _BRUTE_FORCE_CHUNK))
         errors[start : start + len(ids)] = tiny_image_distances(
             maps, pack_tiny_images(index.rows(size, ids))
         )
@@ -125,11 +144,18 @@ def brute_force_errors(index: DatabaseIndex, query: NDArray[np.uint8]) -> NDArra
 
 
 def exact_nearest_errors(
-    database: str, query_images: list[dict[int, NDArray[np.uint8]]], size: int
+    database: str,
+    query_images: list[dict[int, NDArray[np.uint8]]],
+    size: int,
+    *,
+    entries: int | None = None,
 ) -> NDArray[np.float64]:
-    """The smallest error of any entry of the file for each query at ``size`` (brute force)."""
+    """The smallest error of any searched entry for each query at ``size`` (brute force);
+    ``entries`` as in :func:`brute_force_errors`."""
     with DatabaseIndex(database, resident_sizes=()) as index:
-        return np.array([float(brute_force_errors(index, q[size]).min()) for q in query_images])
+        return np.array(
+            [float(brute_force_errors(index, q[size], entries=entries).min()) for q in query_images]
+        )
 
 
 def run_lookup_benchmark(
@@ -153,7 +179,8 @@ def run_lookup_benchmark(
         query_images = held_out_queries(queries, seed=seed)
     last = parse_cascade(cascade)[-1]
     if exact_errors is None:
-        exact_errors = exact_nearest_errors(database, query_images, last.size)
+        exact_errors = exact_nearest_errors(database, query_images, last.size, entries=entries)
+    rss_before = _resident_mb()
     with DatabaseIndex(database, tile_to=entries) as index:
         parse_cascade(cascade, sizes=index.resolutions)
         index.search(query_images[0], cascade, workers=workers)  # warm-up: compile, map pages
@@ -174,7 +201,8 @@ def run_lookup_benchmark(
             latency_ms=np.array(latencies),
             stage_ms=np.array(stage_times),
             ranks=np.array(ranks),
-            rss_mb=_resident_mb(),
+            rss_mb=_resident_mb() - rss_before,
+            process_rss_mb=_resident_mb(),
         )
 
 
