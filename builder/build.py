@@ -252,7 +252,9 @@ def write_shard(parts: Path, posture_index: int, images: dict[int, NDArray[np.ui
     final = shard_path(parts, posture_index)
     temporary = final.with_suffix(".tmp.npz")
     arrays: dict[str, Any] = {f"tiny_{size}": array for size, array in images.items()}
-    np.savez_compressed(temporary, **arrays)
+    # Uncompressed: compressing costs a quarter of a worker's time, and shards are
+    # temporary (they take about as much disk as the finished database).
+    np.savez(temporary, **arrays)
     os.replace(temporary, final)
 
 
