@@ -330,3 +330,7 @@ def main() -> None:
     ]
     Path(args.out).write_text("\n".join(header) + "".join(body))
     print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
