@@ -263,6 +263,9 @@ def read_shard(parts: Path, posture_index: int, sizes: tuple[int, ...]) -> dict[
         return {size: data[f"tiny_{size}"] for size in sizes}
 
 
+# State of a worker process (its renderer), set once by the pool's initializer: the
+# only way a ProcessPoolExecutor task can reach per-process state. Never used in the
+# main process.
 _WORKER: dict[str, Any] = {}
 
 
