@@ -190,6 +190,14 @@ class Tracker(Closing):
         self._model_labels = self.split.labels
         self._smoother = PoseSmoother(self.settings.smoothing_frames)
         self._sizes = self.index.resolutions
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Run the compiled kernels once, so the first frame is not slow (numba loads
+        or compiles them on first use)."""
+        square = np.stack(np.meshgrid(np.arange(8.0), np.arange(8.0)), -1).reshape(-1, 2)
+        stacks = tiny_images_from_pixels(square, np.ones(len(square), np.uint8), self._sizes)
+        self.index.search({size: stack[0] for size, stack in stacks.items()}, self.settings.cascade)
 
     def track(self, frame: Frame) -> TrackingResult:
         """Estimate the hand in one frame (see the module docstring)."""

@@ -52,16 +52,21 @@ def database_cache(cache: str | None) -> Path:
 
 def cached_database(cache: Path, workers: int) -> Path:
     """The open+pinch+power database, built into the cache unless an identical build is
-    there (the file name carries a hash of the settings and project version)."""
+    there (the file name carries a hash of the settings, the project version, and the
+    source and data files that decide the database's contents)."""
     from builder.build import build_database, stored_settings
     from builder.config import load_config
     from glovedb.resources import config_path
 
     config = load_config(config_path("db/open_pinch_power.toml"))
-    digest = hashlib.sha256(
-        json.dumps(stored_settings(config), sort_keys=True).encode()
-    ).hexdigest()
-    path = cache / f"open_pinch_power-{digest[:12]}.h5"
+    digest = hashlib.sha256(json.dumps(stored_settings(config), sort_keys=True).encode())
+    # The code that makes the bytes is part of the key, so a changed builder rebuilds.
+    for package in ("glovedb", "builder"):
+        for source in sorted((Path(__file__).resolve().parents[2] / package).glob("*.py")):
+            digest.update(source.read_bytes())
+    for data in ("glove/pattern.toml", "hand/postures.toml"):
+        digest.update(config_path(data).read_bytes())
+    path = cache / f"open_pinch_power-{digest.hexdigest()[:12]}.h5"
     if path.exists():
         print(f"database: reusing {path}")
         return path
