@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from glovedb._validate import as_array
-from glovedb.rotations import rotation_x, rotation_y, rotation_z
+from glovedb.rotations import rotation_y, rotation_z
 
 FINGERS: tuple[str, ...] = ("thumb", "index", "middle", "ring", "little")
 
@@ -200,19 +200,24 @@ def joint_rotations(posture_rad: NDArray[np.float64]) -> NDArray[np.float64]:
     (N, 16, 3, 3) float64
         Identity for the palm.
     """
+    # Every joint is Rz(z_angle) @ Rx(x_angle) about the parent's axes; joints without
+    # a z part have z_angle 0. Built from cos and sin directly: this runs for every
+    # skinning of the mesh.
     n = len(posture_rad)
-    rotations = np.tile(np.eye(3), (n, N_BONES, 1, 1))
-    abd, flex = posture_rad[:, 0], posture_rad[:, 1]
-    rotations[:, 1] = rotation_z(-flex) @ rotation_x(-abd)
-    rotations[:, 2] = rotation_x(-posture_rad[:, 2])
-    rotations[:, 3] = rotation_x(-posture_rad[:, 3])
+    z_angle = np.zeros((n, N_BONES))
+    x_angle = np.zeros((n, N_BONES))
+    z_angle[:, 1] = -posture_rad[:, 1]
+    x_angle[:, 1] = -posture_rad[:, 0]
+    x_angle[:, 2:4] = -posture_rad[:, 2:4]
     for finger in range(1, 5):
         first, base = 1 + 3 * finger, 4 * finger
-        rotations[:, first] = rotation_z(posture_rad[:, base]) @ rotation_x(
-            -posture_rad[:, base + 1]
-        )
-        rotations[:, first + 1] = rotation_x(-posture_rad[:, base + 2])
-        rotations[:, first + 2] = rotation_x(-posture_rad[:, base + 3])
+        z_angle[:, first] = posture_rad[:, base]
+        x_angle[:, first : first + 3] = -posture_rad[:, base + 1 : base + 4]
+    cz, sz, cx, sx = np.cos(z_angle), np.sin(z_angle), np.cos(x_angle), np.sin(x_angle)
+    rotations = np.empty((n, N_BONES, 3, 3))
+    rotations[..., 0, 0], rotations[..., 0, 1], rotations[..., 0, 2] = cz, -sz * cx, sz * sx
+    rotations[..., 1, 0], rotations[..., 1, 1], rotations[..., 1, 2] = sz, cz * cx, -cz * sx
+    rotations[..., 2, 0], rotations[..., 2, 1], rotations[..., 2, 2] = 0.0, sx, cx
     return rotations
 
 

@@ -35,6 +35,22 @@ DEFAULT_CASCADE = "8:2000,16:300,64:3"
 THESIS_CASCADE = "16:500,64:3"
 
 
+def default_cascade(sizes: tuple[int, ...]) -> str:
+    """:data:`DEFAULT_CASCADE` when the database has its sizes, else the same shape on
+    the sizes it has: the smallest keeps 2000, 16 (if present) 300, the largest 3."""
+    if {8, 16, 64} <= set(sizes):
+        return DEFAULT_CASCADE
+    ordered = sorted(set(sizes))
+    stages = [(ordered[0], 2000)]
+    if 16 in ordered[1:-1]:
+        stages.append((16, 300))
+    if ordered[-1] != ordered[0]:
+        stages.append((ordered[-1], 3))
+    else:
+        stages = [(ordered[0], 3)]
+    return ",".join(f"{size}:{k}" for size, k in stages)
+
+
 @dataclass(frozen=True)
 class Lookup:
     """Result of :meth:`DatabaseIndex.lookup`.

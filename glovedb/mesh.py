@@ -213,9 +213,33 @@ def skinning_weights(
 
 def skinning_matrices(posture_rad: ArrayLike, skeleton: Skeleton) -> NDArray[np.float64]:
     """``(N, 16, 3, 4)`` rest-to-posed bone transforms for ``(N, 20)`` postures."""
-    posed = forward_kinematics(posture_rad, skeleton).bone_transforms
-    rest = forward_kinematics(np.zeros(N_JOINTS), skeleton).bone_transforms[0]
-    return (posed @ np.linalg.inv(rest))[:, :, :3, :]
+    posture = np.asarray(posture_rad, dtype=np.float64).reshape(-1, N_JOINTS)
+    # The rest pose rides along as the last row so forward kinematics runs once.
+    both = forward_kinematics(np.vstack([posture, np.zeros(N_JOINTS)]), skeleton).bone_transforms
+    return (both[:-1] @ np.linalg.inv(both[-1]))[:, :, :3, :]
+
+
+def skin(mesh: HandMesh, matrices: ArrayLike) -> NDArray[np.float64]:
+    """Linear blend skinning of the mesh with given bone matrices.
+
+    Parameters
+    ----------
+    mesh : HandMesh
+    matrices : (N, 16, 3, 4) float
+        From :func:`skinning_matrices`.
+
+    Returns
+    -------
+    (N, V, 3) float64
+        Hand frame.
+    """
+    matrices = as_array("matrices", matrices, (None, N_BONES, 3, 4), np.float64)
+    count = len(matrices)
+    # Blend the bones' 3 x 4 matrices per vertex: one (V, 16) @ (16, N * 12) product.
+    flat = matrices.transpose(1, 0, 2, 3).reshape(N_BONES, count * 12)
+    blended = mesh.weights.astype(np.float64) @ flat
+    blended = blended.reshape(-1, count, 3, 4).transpose(1, 0, 2, 3)
+    return np.einsum("nvij,vj->nvi", blended[..., :3], mesh.rest_vertices_m) + blended[..., 3]
 
 
 def pose_mesh(mesh: HandMesh, posture_rad: ArrayLike) -> NDArray[np.float64]:
@@ -232,9 +256,7 @@ def pose_mesh(mesh: HandMesh, posture_rad: ArrayLike) -> NDArray[np.float64]:
         Matching the input's batch shape.
     """
     posture = as_array("posture_rad", posture_rad, (..., N_JOINTS), np.float64, finite=True)
-    matrices = skinning_matrices(posture.reshape(-1, N_JOINTS), mesh.skeleton)
-    blended = np.einsum("vb,nbij->nvij", mesh.weights.astype(np.float64), matrices)
-    vertices = np.einsum("nvij,vj->nvi", blended[..., :3], mesh.rest_vertices_m) + blended[..., 3]
+    vertices = skin(mesh, skinning_matrices(posture.reshape(-1, N_JOINTS), mesh.skeleton))
     return vertices.reshape(posture.shape[:-1] + vertices.shape[-2:])
 
 

@@ -121,7 +121,7 @@ def color_icp(
     *,
     iterations: int = 30,
     max_distance_m: float = 0.04,
-    tolerance_m: float = 1e-5,
+    tolerance_m: float = 5e-5,
 ) -> IcpResult:
     """Align the model (hand frame) to the observed points (camera frame).
 

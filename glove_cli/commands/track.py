@@ -37,6 +37,11 @@ def add_tracker_options(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--icp-stride", type=int, help="use every n-th point in ICP")
     parser.add_argument("--no-smoothing", action="store_true", help="turn temporal smoothing off")
+    parser.add_argument(
+        "--refine-iterations",
+        type=int,
+        help="steps of the posture refinement (default 2; 3 is more accurate, 0 turns it off)",
+    )
 
 
 def make_tracker(args: argparse.Namespace) -> Tracker:
@@ -54,6 +59,10 @@ def make_tracker(args: argparse.Namespace) -> Tracker:
         settings = replace(settings, icp_stride=args.icp_stride)
     if args.no_smoothing:
         settings = replace(settings, smoothing_frames=1)
+    if args.refine_iterations is not None:
+        if args.refine_iterations < 0:
+            raise ValueError("--refine-iterations must be 0 or more")
+        settings = replace(settings, refine_iterations=args.refine_iterations)
     colors = args.colors
     beside = default_table_path(args.db)
     if colors is None and beside.exists():

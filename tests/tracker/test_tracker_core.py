@@ -131,6 +131,8 @@ def test_tracker_finds_rendered_hands_and_reports_no_hand_without_glove(small_da
     from tracker.pipeline import Tracker, TrackerSettings
 
     settings = TrackerSettings(cascade="8:30,16:10,32:3", smoothing_frames=1)
+    with pytest.raises(ValueError, match="64"):
+        Tracker(small_database, settings=TrackerSettings(cascade="8:30,64:3"))
     rng = np.random.default_rng(3)
     with Tracker(small_database, settings=settings) as tracker:
         errors = []
