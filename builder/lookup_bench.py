@@ -22,6 +22,7 @@ from builder.render import GloveRenderer
 from builder.sampling import synergy_postures
 from glovedb.camera import KINECT_V1
 from glovedb.chamfer import chamfer_maps
+from glovedb.database import GloveDatabase
 from glovedb.lookup import DatabaseIndex
 from glovedb.postures import load_named_postures
 from glovedb.rotations import quaternion_to_matrix
@@ -175,6 +176,8 @@ def run_lookup_benchmark(
     :func:`exact_nearest_errors` at the cascade's last size) may be passed in to reuse
     them across runs; by default they are made here.
     """
+    with GloveDatabase(database) as checked:  # a bad file or cascade fails before rendering
+        parse_cascade(cascade, sizes=checked.resolutions)
     if query_images is None:
         query_images = held_out_queries(queries, seed=seed)
     last = parse_cascade(cascade)[-1]
