@@ -270,6 +270,7 @@ class Tracker(Closing):
                 cloud.points_m[::step], cloud.labels[::step], self.mesh, self.split,
                 posture, rotation, translation,
                 iterations=self.settings.refine_iterations, prior_weight=self.settings.refine_prior,
+                start_surface=(surface, normals),
             )  # fmt: skip
             posture, rotation, translation = (
                 refined.posture_rad,

@@ -104,6 +104,7 @@ def refine(
     prior_weight: float = 0.004,
     damping: float = 1e-6,
     gate_m: float = 0.015,
+    start_surface: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> RefinementResult:
     """Fit posture and pose to the labeled point cloud (see the module docstring).
 
@@ -126,6 +127,9 @@ def refine(
         Levenberg-Marquardt damping added to the normal equations' diagonal.
     gate_m : float
         Pairs farther apart are not used.
+    start_surface : ((V, 3), (V, 3)) float, optional
+        The mesh's vertices and normals (hand frame) already skinned for
+        ``posture_rad``, to save the first iteration's skinning.
 
     Returns
     -------
@@ -143,8 +147,11 @@ def refine(
     for iteration in range(1, iterations + 1):
         done = iteration
         matrices = _stepped_matrices(mesh, theta)
-        hand = skin(mesh, matrices[:1])[0]
-        normals = vertex_normals(hand, mesh.faces)
+        if iteration == 1 and start_surface is not None:
+            hand, normals = start_surface
+        else:
+            hand = skin(mesh, matrices[:1])[0]
+            normals = vertex_normals(hand, mesh.faces)
         model, model_normals = hand[split.source_vertex], normals[split.source_vertex]
         camera_in_hand = -R.T @ t
         front = np.einsum("ij,ij->i", model_normals, model - camera_in_hand) < 0
