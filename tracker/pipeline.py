@@ -200,8 +200,6 @@ class Tracker(Closing):
         self.skeleton = make_skeleton(hand_length)
         self.mesh = make_hand_mesh(self.skeleton, spacing_m=self.settings.mesh_spacing_m)
         self.split = split_by_label(self.mesh, pattern)
-        self._model_vertex = self.split.source_vertex
-        self._model_labels = self.split.labels
         self._smoother = PoseSmoother(self.settings.smoothing_frames)
         self._sizes = self.index.resolutions
         self.cascade = self.settings.cascade or default_cascade(self._sizes)
@@ -248,7 +246,7 @@ class Tracker(Closing):
         rotation = _ray_rotation(frame.intrinsics, centre_px) @ lookup.pose.rotation
         surface = pose_mesh(self.mesh, posture)
         normals = vertex_normals(surface, self.mesh.faces)
-        model, model_normals = surface[self._model_vertex], normals[self._model_vertex]
+        model, model_normals = surface[self.split.source_vertex], normals[self.split.source_vertex]
         translation = self._initial_translation(cloud.points_m, model, model_normals, rotation)
         points = cloud.subsample(self.settings.icp_stride)
         step = max(1, len(points) // self.settings.icp_max_points)
@@ -257,7 +255,7 @@ class Tracker(Closing):
             points.labels[::step],
             model,
             model_normals,
-            self._model_labels,
+            self.split.labels,
             rotation,
             translation,
             iterations=self.settings.icp_iterations,
