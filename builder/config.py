@@ -19,12 +19,13 @@ Relative file names are relative to the TOML file. Unknown keys are errors.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import tomllib
 
+from glovedb._validate import dataclass_from_table
 from glovedb.tiny_images import DEFAULT_SIZES, check_sizes
 
 
@@ -87,18 +88,6 @@ class DatabaseConfig:
         return asdict(self)
 
 
-def _build(cls: type, table: dict[str, Any], where: str) -> Any:
-    names = {f.name for f in fields(cls)}
-    unknown = sorted(set(table) - names)
-    if unknown:
-        raise ValueError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(names))})")
-    values = {k: tuple(v) if isinstance(v, list) else v for k, v in table.items()}
-    try:
-        return cls(**values)
-    except TypeError as error:
-        raise ValueError(f"{where}: {error}") from error
-
-
 def config_from_dict(
     data: dict[str, Any], *, source: str = "config", base_dir: str = "."
 ) -> DatabaseConfig:
@@ -106,19 +95,21 @@ def config_from_dict(
     data = dict(data)
     postures = dict(data.pop("postures", {}))
     random = postures.pop("random", None)
-    sources = _build(PostureSources, postures, f"{source} [postures]")
+    sources = dataclass_from_table(PostureSources, postures, f"{source} [postures]")
     if random is not None:
         sources = PostureSources(
             **{
                 **asdict(sources),
-                "random": _build(RandomPostures, random, f"{source} [postures.random]"),
+                "random": dataclass_from_table(
+                    RandomPostures, random, f"{source} [postures.random]"
+                ),
             }
         )
-    views = _build(ViewSettings, data.pop("views", {}), f"{source} [views]")
-    images = _build(ImageSettings, data.pop("images", {}), f"{source} [images]")
+    views = dataclass_from_table(ViewSettings, data.pop("views", {}), f"{source} [views]")
+    images = dataclass_from_table(ImageSettings, data.pop("images", {}), f"{source} [images]")
     if "name" not in data:
         data["name"] = Path(source).stem
-    config = _build(
+    config = dataclass_from_table(
         DatabaseConfig,
         {**data, "postures": sources, "views": views, "images": images, "base_dir": base_dir},
         source,

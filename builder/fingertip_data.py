@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 from builder.depth_noise import NOISE_PRESETS, apply_depth_noise, noise_preset
 from builder.render import GloveRenderer
 from glovedb import __version__
-from glovedb._validate import as_array, check_choice
+from glovedb._validate import as_array, check_choice, dataclass_from_table
 from glovedb.camera import CameraIntrinsics
 from glovedb.hand_model import (
     DEFAULT_HAND_LENGTH_M,
@@ -151,12 +151,7 @@ class FingertipDataConfig:
 
 def data_config_from_dict(table: Mapping[str, Any]) -> FingertipDataConfig:
     """Build a :class:`FingertipDataConfig` from a TOML table; unknown keys are errors."""
-    known = {field.name for field in fields(FingertipDataConfig)}
-    unknown = set(table) - known
-    if unknown:
-        raise ValueError(f"data: unknown settings {', '.join(sorted(unknown))}")
-    values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in table.items()}
-    return FingertipDataConfig(**values)
+    return dataclass_from_table(FingertipDataConfig, table, "data")
 
 
 @dataclass(frozen=True)

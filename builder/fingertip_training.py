@@ -17,7 +17,7 @@ import json
 import math
 import os
 from collections.abc import Iterable, Iterator, Mapping
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -28,7 +28,7 @@ from sklearn.ensemble import ExtraTreesClassifier, RandomForestClassifier
 
 from builder.fingertip_data import FingertipDataConfig, data_config_from_dict
 from glovedb import __version__
-from glovedb._validate import as_array, check_choice
+from glovedb._validate import as_array, check_choice, dataclass_from_table
 from tracker.fingertips.detect import DetectorConfig, detector_config_from_dict
 from tracker.fingertips.features import (
     backproject,
@@ -461,12 +461,7 @@ def train_fingertip_forest(
 
 def training_config_from_dict(table: Mapping[str, Any]) -> FingertipTrainingConfig:
     """Build a :class:`FingertipTrainingConfig` from a TOML table; unknown keys are errors."""
-    known = {field.name for field in fields(FingertipTrainingConfig)}
-    unknown = set(table) - known
-    if unknown:
-        raise ValueError(f"training: unknown settings {', '.join(sorted(unknown))}")
-    values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in table.items()}
-    return FingertipTrainingConfig(**values)
+    return dataclass_from_table(FingertipTrainingConfig, table, "training")
 
 
 @dataclass(frozen=True)

@@ -8,8 +8,10 @@ line and exit code 2.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import fields
 from types import EllipsisType
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike, NDArray
@@ -92,3 +94,23 @@ def check_choice(name: str, value: str, choices: Sequence[str]) -> str:
     if value not in choices:
         raise ValueError(f"{name}: expected one of {', '.join(map(repr, choices))}, got {value!r}")
     return value
+
+
+_Config = TypeVar("_Config")
+
+
+def dataclass_from_table(cls: type[_Config], table: Mapping[str, Any], where: str) -> _Config:
+    """Build a (frozen) dataclass from a parsed TOML table.
+
+    Lists become tuples; an unknown key, or a value the dataclass rejects, raises a
+    ``ValueError`` that starts with ``where`` (e.g. the file and table name).
+    """
+    names = {f.name for f in fields(cls)}  # type: ignore[arg-type]
+    unknown = sorted(set(table) - names)
+    if unknown:
+        raise ValueError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(names))})")
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in table.items()}
+    try:
+        return cls(**values)
+    except TypeError as error:
+        raise ValueError(f"{where}: {error}") from error
