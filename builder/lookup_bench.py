@@ -10,6 +10,7 @@ compared with what the cascade returns.
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from dataclasses import dataclass
@@ -26,7 +27,7 @@ from glovedb.database import GloveDatabase
 from glovedb.lookup import DatabaseIndex
 from glovedb.postures import load_named_postures
 from glovedb.rotations import quaternion_to_matrix
-from glovedb.search import pack_tiny_images, parse_cascade, tiny_image_distances
+from glovedb.search import CoarseMaps, pack_tiny_images, parse_cascade, tiny_image_distances
 from glovedb.tiny_images import tiny_images
 from glovedb.views import HAND_CENTRE
 
@@ -169,12 +170,14 @@ def run_lookup_benchmark(
     seed: int = _QUERY_SEED,
     query_images: list[dict[int, NDArray[np.uint8]]] | None = None,
     exact_errors: NDArray[np.float64] | None = None,
+    coarse_maps: CoarseMaps = "cell_mean",
 ) -> LookupBenchmark:
     """Time held-out lookups and score them against brute force.
 
     ``query_images`` and ``exact_errors`` (from :func:`held_out_queries` and
     :func:`exact_nearest_errors` at the cascade's last size) may be passed in to reuse
-    them across runs; by default they are made here.
+    them across runs; by default they are made here. ``coarse_maps`` as in
+    :func:`glovedb.search.cascade_search`.
     """
     with GloveDatabase(database) as checked:  # a bad file or cascade fails before rendering
         parse_cascade(cascade, sizes=checked.resolutions)
@@ -186,11 +189,14 @@ def run_lookup_benchmark(
     rss_before = _resident_mb()
     with DatabaseIndex(database, tile_to=entries) as index:
         parse_cascade(cascade, sizes=index.resolutions)
-        index.search(query_images[0], cascade, workers=workers)  # warm-up: compile, map pages
+        search = functools.partial(
+            index.search, cascade=cascade, workers=workers, coarse_maps=coarse_maps
+        )
+        search(query_images[0])  # warm-up: compile, map pages
         latencies, stage_times, ranks = [], [], []
         for query, best in zip(query_images, exact_errors, strict=True):
             started = time.perf_counter()
-            result = index.search(query, cascade, workers=workers)
+            result = search(query)
             latencies.append((time.perf_counter() - started) * 1000.0)
             stage_times.append(result.stage_ms)
             # The exact nearest error: a returned entry with that error is a hit (ties).

@@ -110,6 +110,36 @@ def chamfer_maps(labels: ArrayLike) -> NDArray[np.float32]:
     return maps.reshape((*images.shape[:-2], NUM_CLASSES, size, size))
 
 
+def cell_mean_maps(maps: ArrayLike, size: int) -> NDArray[np.float32]:
+    """Chamfer maps of a finer image averaged over the cells of a coarser grid.
+
+    A pixel of a coarse tiny image stands for a cell of ``(S / s)**2`` pixels of the
+    finer one; where in that cell its colour lies is lost. Looking it up in the mean
+    of the fine maps over the cell is its expected distance under that uncertainty,
+    instead of the distance from the cell's centre after the query, too, was
+    quantised. The cascade's early stages use these maps (:mod:`glovedb.search`).
+
+    Parameters
+    ----------
+    maps : (10, S, S) float32
+        Chamfer maps of an ``S x S`` image (:func:`chamfer_maps`), in fine pixels.
+    size : int
+        Side ``s`` of the coarse grid; must divide ``S``.
+
+    Returns
+    -------
+    (10, s, s) float32
+        Mean of each cell, in coarse pixels (fine pixels times ``s / S``).
+    """
+    array = as_array("maps", maps, (NUM_CLASSES, None, None), np.float32)
+    fine = array.shape[-1]
+    if array.shape[-2] != fine or size < 1 or fine % size:
+        raise ValueError(f"size: must divide the maps' side {fine}, got {size}")
+    factor = fine // size
+    cells = array.reshape(NUM_CLASSES, size, factor, size, factor).mean(axis=(2, 4))
+    return (cells / np.float32(factor)).astype(np.float32)
+
+
 def directed_distance(labels_a: ArrayLike, maps_b: ArrayLike) -> NDArray[np.float32]:
     """Eq. 4.2, ``m(A, B)``, by lookup of ``A``'s glove pixels in ``B``'s chamfer maps.
 

@@ -20,6 +20,7 @@ from glovedb._closing import Closing
 from glovedb.database import GloveDatabase
 from glovedb.search import (
     CascadeStage,
+    CoarseMaps,
     InterpolatedPose,
     PackedTinyImages,
     SearchResult,
@@ -78,8 +79,10 @@ class DatabaseIndex(Closing):
     path : str or Path
         A complete database (see :mod:`glovedb.database`).
     resident_sizes : sequence of int, optional
-        Sizes packed into memory at once. By default the sizes up to 16; any other
-        size used as a cascade's first stage is packed on first use.
+        Sizes packed into memory at once. By default the smallest, which cascades
+        scan in full; any other size used as a cascade's first stage is packed on
+        first use. The other stages read only their candidates' rows through the
+        memory map.
     tile_to : int, optional
         Benchmarks only: repeat the entries until there are this many, to measure
         speed beyond the size that was built.
@@ -115,9 +118,7 @@ class DatabaseIndex(Closing):
         self.hand_length_m = float(self._database.settings["config"]["hand_length_m"])
         self._packed: dict[int, PackedTinyImages] = {}
         self._rows: dict[int, NDArray[np.uint8]] = {}
-        wanted = resident_sizes if resident_sizes is not None else tuple(
-            s for s in self.resolutions if s <= 16
-        )  # fmt: skip
+        wanted = resident_sizes if resident_sizes is not None else self.resolutions[:1]
         for size in wanted:
             self.packed(size)
 
@@ -171,10 +172,17 @@ class DatabaseIndex(Closing):
         cascade: str = DEFAULT_CASCADE,
         *,
         workers: int | None = None,
+        coarse_maps: CoarseMaps = "cell_mean",
     ) -> SearchResult:
         """Cascaded nearest entries of a query (see :func:`glovedb.search.cascade_search`)."""
         stages = parse_cascade(cascade, sizes=self.resolutions)
-        return cascade_search(query_images, self.sources(stages), stages, workers=workers)
+        return cascade_search(
+            query_images,
+            self.sources(stages),
+            stages,
+            workers=workers,
+            coarse_maps=coarse_maps,
+        )
 
     def lookup(
         self,
@@ -182,9 +190,10 @@ class DatabaseIndex(Closing):
         cascade: str = DEFAULT_CASCADE,
         *,
         workers: int | None = None,
+        coarse_maps: CoarseMaps = "cell_mean",
     ) -> Lookup:
         """Nearest entries and their error-weighted posture and rotation."""
-        result = self.search(query_images, cascade, workers=workers)
+        result = self.search(query_images, cascade, workers=workers, coarse_maps=coarse_maps)
         pose = interpolate_pose(
             result.errors,
             self.entry_postures(result.entry_ids),

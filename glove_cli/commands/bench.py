@@ -23,6 +23,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     lookup.add_argument("--entries", type=int, help="tile the database to this many entries")
     lookup.add_argument("--queries", type=int, default=20, help="number of queries")
     lookup.add_argument("--workers", type=int, help="search threads (default: all cores)")
+    lookup.add_argument(
+        "--coarse-maps",
+        choices=("cell_mean", "exact"),  # glovedb.search.COARSE_MAPS, not imported: slow
+        default="cell_mean",
+        help="query maps of the stages before the last (default: cell_mean)",
+    )
     lookup.add_argument("--json", action="store_true", help="print one JSON object")
     lookup.set_defaults(run=run_lookup)
 
@@ -36,7 +42,7 @@ def run_lookup(args: argparse.Namespace) -> int:
         raise ValueError("--queries must be at least 1")
     figures = run_lookup_benchmark(
         args.db, cascade=args.cascade, entries=args.entries, queries=args.queries,
-        workers=args.workers,
+        workers=args.workers, coarse_maps=args.coarse_maps,
     ).as_dict()  # fmt: skip
     if args.json:
         print(json.dumps(figures))

@@ -10,6 +10,7 @@ import pytest
 from glovedb.chamfer import (
     NUM_CLASSES,
     absent_class_distance_px,
+    cell_mean_maps,
     chamfer_maps,
     directed_distance,
     symmetric_distance,
@@ -119,6 +120,31 @@ def test_empty_images_give_infinity_or_the_absent_penalty() -> None:
     assert brute_force_distance(empty, full) == math.inf
 
 
+def test_cell_mean_maps_average_each_cell_in_coarse_pixels() -> None:
+    fine = random_labels(np.random.default_rng(3), 32, 0.3)
+    maps = chamfer_maps(fine)
+    coarse = cell_mean_maps(maps, 8)
+    assert coarse.shape == (NUM_CLASSES, 8, 8) and coarse.dtype == np.float32
+    # Cell (2, 5) of an 8x8 grid over 32x32 is rows 8..11, columns 20..23; 4 fine
+    # pixels make one coarse pixel.
+    expected = maps[:, 8:12, 20:24].mean(axis=(1, 2)) / 4
+    np.testing.assert_allclose(coarse[:, 2, 5], expected, rtol=1e-6)
+    np.testing.assert_array_equal(cell_mean_maps(maps, 32), maps)
+
+
+def test_cell_mean_maps_of_a_one_pixel_patch_know_where_in_the_cell_it_is() -> None:
+    # A colour on one fine pixel at the corner of its coarse cell: the cell-mean map
+    # of that cell is the mean distance from the cell's fine pixels to the corner,
+    # not zero, and the neighbouring cells see the true fine distances.
+    fine = np.zeros((16, 16), np.uint8)
+    fine[0, 0] = 5
+    coarse = cell_mean_maps(chamfer_maps(fine), 8)[4]
+    corner = np.mean([math.hypot(y, x) for y in range(2) for x in range(2)]) / 2
+    assert coarse[0, 0] == pytest.approx(corner, rel=1e-6)
+    right = np.mean([math.hypot(y, x) for y in range(2) for x in range(2, 4)]) / 2
+    assert coarse[0, 1] == pytest.approx(right, rel=1e-6)
+
+
 def test_bad_inputs_raise() -> None:
     with pytest.raises(ValueError, match="labels"):
         chamfer_maps(np.full((8, 8), 11, np.uint8))
@@ -130,3 +156,5 @@ def test_bad_inputs_raise() -> None:
         directed_distance(np.zeros((8, 8), np.uint8), np.zeros((10, 16, 16), np.float32))
     with pytest.raises(ValueError, match="labels_b"):
         symmetric_distance(np.zeros((8, 8), np.uint8), np.zeros((16, 16), np.uint8))
+    with pytest.raises(ValueError, match="must divide"):
+        cell_mean_maps(np.zeros((10, 16, 16), np.float32), 5)

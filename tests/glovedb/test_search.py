@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from glovedb.chamfer import chamfer_maps, directed_distance
+from glovedb.chamfer import cell_mean_maps, chamfer_maps, directed_distance
 from glovedb.rotations import (
     axis_angle_to_matrix,
     geodesic_angle,
@@ -159,6 +159,27 @@ def test_cascade_with_large_k_equals_brute_force() -> None:
     assert result.cascade == parse_cascade("8:1500,16:1500,32:10")
 
 
+@pytest.mark.parametrize("coarse_maps", ["cell_mean", "exact"])
+def test_early_stages_rank_by_the_chosen_query_maps(coarse_maps: str) -> None:
+    rng = np.random.default_rng(9)
+    images = multi_size_database(rng, 400)
+    query = {size: stack[0] for size, stack in multi_size_database(rng, 1).items()}
+    database = {size: pack_tiny_images(stack) for size, stack in images.items()}
+    result = cascade_search(query, database, "8:40,32:40", coarse_maps=coarse_maps)  # type: ignore[arg-type]
+    # The last stage is exact Eq. 4.2 over the first stage's 40 survivors, which are
+    # the 40 nearest under the early maps: cell means of the 32x32 maps, or the
+    # exact maps of the 8x8 query.
+    if coarse_maps == "cell_mean":
+        early_maps = cell_mean_maps(chamfer_maps(query[32]), 8)
+    else:
+        early_maps = chamfer_maps(query[8])
+    early = directed_distance(images[8], early_maps)
+    survivors = np.lexsort((np.arange(len(early)), early))[:40]
+    np.testing.assert_array_equal(np.sort(result.entry_ids), np.sort(survivors))
+    final = directed_distance(images[32], chamfer_maps(query[32]))
+    np.testing.assert_allclose(result.errors, np.sort(final[survivors]), rtol=1e-5)
+
+
 def test_first_stage_selection_on_a_large_scan_equals_brute_force() -> None:
     rng = np.random.default_rng(5)
     images = hand_like_labels(rng, 100_000, 8)
@@ -206,6 +227,8 @@ def test_cascade_search_rejects_bad_inputs() -> None:
         cascade_search(query, {8: packed[8], 16: images[16][:10]}, "8:5,16:2")
     with pytest.raises(ValueError, match="not in the database"):
         cascade_search(query, packed, "8:5,64:2")
+    with pytest.raises(ValueError, match="coarse_maps"):
+        cascade_search(query, packed, "8:5,16:2", coarse_maps="blurred")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="loaded"):
         cascade_search(query, {8: packed[8], 16: lambda ids: images[16][:1]}, "8:5,16:2")
 
