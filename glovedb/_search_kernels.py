@@ -44,3 +44,39 @@ def score_rows(
         count = glove_pixels[row]
         total = (sum0 + sum1) + (sum2 + sum3)
         errors[row] = np.float32(np.inf) if count == 0 else total / np.float32(count)
+
+
+@numba.njit(nogil=True, cache=True, fastmath=_FASTMATH)
+def score_label_rows(
+    labels: NDArray[np.uint8],
+    lookup: NDArray[np.float32],
+    start: int,
+    stop: int,
+    errors: NDArray[np.float32],
+) -> None:
+    """Fill ``errors[start:stop]`` from unpacked label rows.
+
+    ``labels (M, P) uint8`` are flattened label images, ``lookup (11, P) float32`` the
+    query's chamfer maps with a zero row 0 for the background.
+    """
+    positions = labels.shape[1]
+    unrolled = positions - positions % 4
+    for row in range(start, stop):
+        sum0 = sum1 = sum2 = sum3 = np.float32(0.0)
+        count = 0
+        for position in range(0, unrolled, 4):
+            a = labels[row, position]
+            b = labels[row, position + 1]
+            c = labels[row, position + 2]
+            d = labels[row, position + 3]
+            sum0 += lookup[a, position]
+            sum1 += lookup[b, position + 1]
+            sum2 += lookup[c, position + 2]
+            sum3 += lookup[d, position + 3]
+            count += (a > 0) + (b > 0) + (c > 0) + (d > 0)
+        for position in range(unrolled, positions):
+            label = labels[row, position]
+            sum0 += lookup[label, position]
+            count += label > 0
+        total = (sum0 + sum1) + (sum2 + sum3)
+        errors[row] = np.float32(np.inf) if count == 0 else total / np.float32(count)

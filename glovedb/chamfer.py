@@ -29,9 +29,9 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import ndimage
 
 from glovedb._validate import as_array
 
@@ -106,7 +106,12 @@ def chamfer_maps(labels: ArrayLike) -> NDArray[np.float32]:
     )
     for index, image in enumerate(flat):
         for label in np.unique(image[image > 0]):
-            maps[index, label - 1] = ndimage.distance_transform_edt(image != label)
+            # OpenCV's precise mask is the exact transform (Felzenszwalb-Huttenlocher),
+            # the same values as scipy.ndimage.distance_transform_edt, faster.
+            other = (image != label).astype(np.uint8)
+            maps[index, label - 1] = cv2.distanceTransform(
+                other, cv2.DIST_L2, cv2.DIST_MASK_PRECISE
+            )
     return maps.reshape((*images.shape[:-2], NUM_CLASSES, size, size))
 
 

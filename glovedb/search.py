@@ -42,7 +42,8 @@ Sources
     Each size in the ``database`` mapping is a :class:`PackedTinyImages` (resident,
     required for the first stage, which scans every entry), an ``(N, s, s) uint8``
     array, or a :data:`RowLoader` ``ids -> (len(ids), s, s) uint8`` that the HDF5
-    reader can supply for the large sizes; loaded rows are packed on the fly.
+    reader can supply for the large sizes; the few rows a later stage needs are
+    scanned as plain labels (packing them would cost more than scanning them).
 """
 
 from __future__ import annotations
@@ -423,25 +424,40 @@ def _lookup_table(maps: NDArray[np.float32], group: int) -> NDArray[np.float32]:
 
 
 def _scan(
-    query_maps: ArrayLike, packed: PackedTinyImages, workers: int | None
+    query_maps: ArrayLike, rows: PackedTinyImages | NDArray[np.uint8], workers: int | None
 ) -> NDArray[np.float32]:
-    """``m(D, Q)`` of all packed rows, scanned in chunks on ``workers`` threads."""
-    size = packed.size
-    maps = as_array("query_maps", query_maps, (NUM_CLASSES, size, size), np.float32)
-    table = _lookup_table(maps, packed.group)
+    """``m(D, Q)`` of all rows, scanned in chunks on ``workers`` threads.
+
+    ``rows`` are packed images or ``(M, s * s) uint8`` labels (a few loaded
+    candidates, for which packing would cost more than the scan).
+    """
     workers = (os.cpu_count() or 1) if workers is None else workers
     if workers < 1:
         raise ValueError(f"workers: must be at least 1, got {workers}")
-    num_rows = packed.num_entries
+    if isinstance(rows, PackedTinyImages):
+        size = rows.size
+        maps = as_array("query_maps", query_maps, (NUM_CLASSES, size, size), np.float32)
+        table = _lookup_table(maps, rows.group)
+        codes, glove_pixels = rows.codes, rows.glove_pixels
+
+        def score(start_stop: tuple[int, int]) -> None:
+            _search_kernels.score_rows(codes, glove_pixels, table, *start_stop, errors)
+
+    else:
+        size = math.isqrt(rows.shape[1])
+        maps = as_array("query_maps", query_maps, (NUM_CLASSES, size, size), np.float32)
+        lookup = np.concatenate([np.zeros((1, size * size), np.float32), maps.reshape(10, -1)])
+        labels = rows
+
+        def score(start_stop: tuple[int, int]) -> None:
+            _search_kernels.score_label_rows(labels, lookup, *start_stop, errors)
+
+    num_rows = len(rows.codes) if isinstance(rows, PackedTinyImages) else len(rows)
     # A few chunks per thread balance the load when another process takes a core.
     num_chunks = max(1, min(4 * workers, num_rows // _MIN_ROWS_PER_CHUNK))
     bounds = np.linspace(0, num_rows, num_chunks + 1)
     starts_stops = list(itertools.pairwise(bounds.astype(np.int64).tolist()))
     errors = np.empty(num_rows, np.float32)
-
-    def score(start_stop: tuple[int, int]) -> None:
-        _search_kernels.score_rows(packed.codes, packed.glove_pixels, table, *start_stop, errors)
-
     if workers == 1 or len(starts_stops) == 1:
         for start_stop in starts_stops:
             score(start_stop)
@@ -504,8 +520,9 @@ def _rows(
     ids: NDArray[np.int64] | None,
     size: int,
     num_entries: int,
-) -> PackedTinyImages:
-    """The packed images of ``ids`` (ascending), or of all entries when ``ids`` is None."""
+) -> PackedTinyImages | NDArray[np.uint8]:
+    """The images of ``ids`` (ascending), or of all entries when ``ids`` is None:
+    packed, or as ``(M, s * s)`` labels when loaded or sliced for a few ids."""
     name = f"database[{size}]"
     if isinstance(source, PackedTinyImages):
         if source.size != size:
@@ -521,6 +538,12 @@ def _rows(
     if callable(source):
         assert ids is not None  # _num_entries rejects a loader in the first stage
         loaded = as_array(f"rows loaded for {name}", source(ids), (len(ids), size, size))
-        return pack_tiny_images(loaded)
+        return _flat_labels(check_labels(f"rows loaded for {name}", loaded))
     images = as_array(name, source, (num_entries, size, size), kind="iu")
-    return pack_tiny_images(images if ids is None else images[ids])
+    if ids is None:
+        return pack_tiny_images(images)
+    return _flat_labels(check_labels(name, images[ids]))
+
+
+def _flat_labels(images: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    return np.ascontiguousarray(images.reshape(len(images), -1))
