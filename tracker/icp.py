@@ -4,9 +4,10 @@ With the posture fixed, every iteration
 
 1. finds the model points that face the camera in the current pose,
 2. pairs every observed point with the nearest front-facing model point of the same
-   color class (one k-d tree per class, built once in the hand frame, where the model
-   does not move; the observed points are mapped into it, and of the four nearest
-   model points the nearest front-facing one is taken),
+   color class: one k-d tree over the front-facing model points of all classes, the
+   class a fourth coordinate far apart (:func:`class_tree`), built in the hand frame,
+   where the model does not move, and rebuilt only when the view has turned by more
+   than 3 degrees; the observed points are mapped into it,
 3. drops pairs farther apart than a distance that shrinks from ``max_distance_m``
    toward three times the median pair distance (outliers: sensor noise, the other
    hand, misclassified background),
@@ -64,6 +65,36 @@ class IcpResult:
     converged: bool
 
 
+CLASS_SPACING_M = 100.0
+"""Distance between colour classes along the extra coordinate of :func:`class_tree`."""
+
+
+def class_coordinate(labels: NDArray[np.integer]) -> NDArray[np.float64]:
+    """``(N,)`` extra coordinate that keeps colour classes :data:`CLASS_SPACING_M` apart."""
+    return np.asarray(labels, dtype=np.float64) * CLASS_SPACING_M
+
+
+def class_tree(points_m: NDArray[np.float64], labels: NDArray[np.integer]) -> cKDTree:
+    """One k-d tree over all classes whose nearest neighbour is of the query's class.
+
+    Each point gets its class times :data:`CLASS_SPACING_M` as a fourth coordinate:
+    a query ``(x, y, z, class_coordinate(c))`` finds the nearest point of class ``c``
+    (any other class is at least 100 m away), with one tree and one query for all
+    classes instead of one per class.
+
+    Parameters
+    ----------
+    points_m : (M, 3) float
+    labels : (M,) int
+
+    Returns
+    -------
+    scipy.spatial.cKDTree
+        Over ``(M, 4)`` points.
+    """
+    return cKDTree(np.column_stack([points_m, class_coordinate(labels)]))
+
+
 def rigid_fit(
     source: NDArray[np.float64], target: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -104,7 +135,10 @@ def _point_to_plane_step(
     normals = source_normals @ rotation.T
     jacobian = np.concatenate([np.cross(points, normals), normals], axis=1)
     residual = np.einsum("ij,ij->i", points - target, normals)
-    delta, *_ = np.linalg.lstsq(jacobian, -residual, rcond=None)
+    # Normal equations: 6 unknowns against hundreds of pairs (lstsq's SVD costs more
+    # than the rest of the step); a tiny damping keeps a flat patch solvable.
+    normal = jacobian.T @ jacobian + 1e-12 * np.eye(6)
+    delta = np.linalg.solve(normal, -(jacobian.T @ residual))
     angle = float(np.linalg.norm(delta[:3]))
     turn = axis_angle_to_matrix(delta[:3], angle) if angle > 0 else np.eye(3)
     return turn @ rotation, turn @ translation + delta[3:]
@@ -156,35 +190,37 @@ def color_icp(
     model_classes = as_array("model_labels", model_labels, (len(model),), kind="iu")
     R = as_array("rotation", rotation, (3, 3), np.float64, finite=True).copy()
     t = as_array("translation_m", translation_m, (3,), np.float64, finite=True).copy()
-    classes = np.intersect1d(np.unique(observed_classes), np.unique(model_classes))
-    by_class = [(np.flatnonzero(observed_classes == c), model_classes == c) for c in classes]
+    # Only observed points of a class the model has can pair.
+    rows = np.flatnonzero(np.isin(observed_classes, model_classes))
+    observed_class_m = class_coordinate(observed_classes[rows])
 
     cost, inliers, previous = np.inf, 0.0, np.inf
     gate = max_distance_m
-    trees: list[tuple[NDArray[np.int64], NDArray[np.int64], cKDTree]] = []
+    tree: cKDTree | None = None
+    members = np.empty(0, np.int64)
     built_for = np.full(3, np.nan)
     for iteration in range(1, iterations + 1):
-        # Which side of the model faces the camera changes slowly: rebuild the
-        # per-class trees of front-facing points only when the view turned by > 3 deg.
+        # Which side of the model faces the camera changes slowly: rebuild the tree
+        # of front-facing points only when the view turned by more than 3 degrees.
         camera_in_hand = -R.T @ t
         view = camera_in_hand / np.linalg.norm(camera_in_hand)
         if not np.dot(view, built_for) > np.cos(np.radians(3.0)):
             front = np.einsum("ij,ij->i", normals, model - camera_in_hand) < 0
-            trees = []
-            for rows, in_class in by_class:
-                members = np.flatnonzero(front & in_class)
-                if len(members):
-                    trees.append((rows, members, cKDTree(model[members])))
+            members = np.flatnonzero(front)
+            tree = class_tree(model[members], model_classes[members]) if len(members) else None
             built_for = view
-        in_hand = (observed - t) @ R  # R^T (p - t) for every row
-        pairs = [(rows, members[tree.query(in_hand[rows])[1]]) for rows, members, tree in trees]
-        if not pairs:
+        if tree is None or len(rows) == 0:
             break
-        rows = np.concatenate([r for r, _ in pairs])
-        matched = np.concatenate([m for _, m in pairs])
+        in_hand = (observed[rows] - t) @ R  # R^T (p - t) for every row
+        matched = members[tree.query(np.column_stack([in_hand, observed_class_m]))[1]]
         source, target = model[matched], observed[rows]
-        distance = np.linalg.norm(in_hand[rows] - source, axis=1)
-        gate = min(gate, max(3.0 * float(np.median(distance)), 0.005))
+        # Another class's point lies CLASS_SPACING_M away: no pair.
+        distance = np.linalg.norm(in_hand - source, axis=1)
+        distance[model_classes[matched] != observed_classes[rows]] = np.inf
+        paired = np.isfinite(distance)
+        if not paired.any():
+            break
+        gate = min(gate, max(3.0 * float(np.median(distance[paired])), 0.005))
         keep = distance < gate
         if keep.sum() < 6:
             break

@@ -5,7 +5,8 @@ the database's nearest postures and their blend. This step fits all 26 degrees o
 freedom (20 joint angles and the 6D pose) to the labeled point cloud:
 
 - correspondences as in :mod:`tracker.icp`: each observed point with the nearest
-  camera-facing model vertex of its own color class, pairs beyond a gate dropped;
+  camera-facing model vertex of its own color class (one k-d tree for all classes,
+  :func:`tracker.icp.class_tree`), pairs beyond a gate dropped;
 - residuals: distance of the observed point to the model vertex's tangent plane;
 - Jacobians: the rigid part as in point-to-plane ICP; for the joint angles,
   derivatives of the skinned vertices ``sum_b w_b dM_b/dtheta v_rest`` with the
@@ -25,13 +26,13 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import cKDTree
 
 from glovedb._validate import as_array
 from glovedb.hand_model import N_JOINTS, clip_to_limits
 from glovedb.mesh import HandMesh, skin, skinning_matrices, vertex_normals
 from glovedb.pattern import LabeledVertices
 from glovedb.rotations import axis_angle_to_matrix
+from tracker.icp import class_coordinate, class_tree
 
 _STEP_RAD = 1e-4
 
@@ -141,7 +142,7 @@ def refine(
     theta = prior.copy()
     R = as_array("rotation", rotation, (3, 3), np.float64, finite=True).copy()
     t = as_array("translation_m", translation_m, (3,), np.float64, finite=True).copy()
-    classes = [(int(c), np.flatnonzero(labels == c)) for c in np.unique(labels)]
+    observed_class_m = class_coordinate(labels)
     cost = np.inf
     done = 0
     for iteration in range(1, iterations + 1):
@@ -156,19 +157,15 @@ def refine(
         camera_in_hand = -R.T @ t
         front = np.einsum("ij,ij->i", model_normals, model - camera_in_hand) < 0
         in_hand = (observed - t) @ R
-        rows, matched = [], []
-        for label, members_rows in classes:
-            members = np.flatnonzero(front & (split.labels == label))
-            if len(members) == 0 or len(members_rows) == 0:
-                continue
-            distance, nearest = cKDTree(model[members]).query(in_hand[members_rows])
-            keep = distance < gate_m
-            rows.append(members_rows[keep])
-            matched.append(members[nearest[keep]])
-        if not rows or sum(len(r) for r in rows) < 30:
+        members = np.flatnonzero(front)
+        if len(members) == 0:
             break
-        row = np.concatenate(rows)
-        vertex = np.concatenate(matched)
+        tree = class_tree(model[members], split.labels[members])
+        distance, nearest = tree.query(np.column_stack([in_hand, observed_class_m]))
+        row = np.flatnonzero(distance < gate_m)  # another class is 100 m away
+        if len(row) < 30:
+            break
+        vertex = members[nearest[row]]
         points = model[vertex] @ R.T + t
         plane_normals = model_normals[vertex] @ R.T
         residual = np.einsum("ij,ij->i", points - observed[row], plane_normals)
