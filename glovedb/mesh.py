@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from glovedb import _mesh_kernels
 from glovedb._validate import as_array
 from glovedb.hand_model import N_BONES, N_JOINTS, Skeleton, forward_kinematics, make_skeleton
 from glovedb.shape import HandShape, hand_distance, make_hand_shape, polygon_distance
@@ -272,13 +273,11 @@ def vertex_normals(vertices: ArrayLike, faces: ArrayLike) -> NDArray[np.float64]
     -------
     (V, 3) float64
     """
-    v = as_array("vertices", vertices, (None, 3), np.float64)
-    f = as_array("faces", faces, (None, 3), kind="iu")
-    face_normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    corners = f.ravel()
-    repeated = np.repeat(face_normals, 3, axis=0)
-    normals = np.stack(
-        [np.bincount(corners, repeated[:, axis], minlength=len(v)) for axis in range(3)], -1
-    )
+    v = np.ascontiguousarray(as_array("vertices", vertices, (None, 3), np.float64))
+    f = np.ascontiguousarray(as_array("faces", faces, (None, 3), kind="iu"), dtype=np.int64)
+    if f.size and (f.min() < 0 or f.max() >= len(v)):
+        raise ValueError(f"faces: vertex indices must be in 0..{len(v) - 1}")
+    normals = np.zeros_like(v)
+    _mesh_kernels.accumulate_face_normals(v, f, normals)
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     return normals / np.maximum(length, 1e-12)
