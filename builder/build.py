@@ -10,8 +10,9 @@ How a build stays safe when it is interrupted:
    complete last, and renamed to ``DB.h5``; then the work folder is removed. A
    reader refuses a file that is not marked complete.
 
-Workers are separate processes started with ``spawn`` (never ``fork``, because an
-OpenGL context must not cross a fork), each with its own renderer; with
+Workers are separate processes started with ``spawn`` (never ``fork``: the calling
+process may hold an OpenGL context, which must not cross a fork), each with its own
+renderer, a software rasteriser (``builder.rasterize``) that needs no context; with
 ``executor="ray"`` they are Ray actors on a cluster (``builder.ray_executor``). Shards
 are assembled in posture order, so the output depends neither on the number of workers
 nor on the executor, and two builds of one config give the same bytes.
@@ -19,12 +20,14 @@ nor on the executor, and two builds of one config give the same bytes.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import multiprocessing
 import os
 import shutil
 import time
+import zipfile
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
@@ -35,18 +38,24 @@ from typing import Any, Literal
 
 import h5py
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 import glovedb
-from builder.config import DatabaseConfig, config_from_dict
+import glovedb.hand_model
+import glovedb.mesh
+import glovedb.shape
+import glovedb.surface_nets
+from builder.config import DatabaseConfig
+from builder.rasterize import rasterize_labels
 from builder.sampling import farthest_point_selection, synergy_postures
 from glovedb.camera import CameraIntrinsics
 from glovedb.database import FORMAT_NAME, FORMAT_VERSION, image_dataset_options
 from glovedb.hand_model import forward_kinematics, make_skeleton
+from glovedb.mesh import HandMesh, make_hand_mesh, pose_mesh
 from glovedb.posture_io import load_postures
 from glovedb.postures import load_named_postures
 from glovedb.resources import config_path
-from glovedb.tiny_images import tiny_images_from_pixels
+from glovedb.tiny_images import tiny_images_of_label_images
 from glovedb.trajectory import load_trajectory
 from glovedb.views import HAND_CENTRE, database_views, icosphere
 
@@ -190,8 +199,66 @@ def stored_settings(config: DatabaseConfig) -> dict[str, Any]:
 # Rendering one posture -------------------------------------------------------------
 
 
+def mesh_cache_folder() -> Path:
+    """``$XDG_CACHE_HOME/glove/meshes``, else ``~/.cache/glove/meshes``."""
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "glove" / "meshes"
+
+
+def cached_hand_mesh(hand_length_m: float, spacing_m: float) -> HandMesh:
+    """:func:`~glovedb.mesh.make_hand_mesh` for a hand length, kept in a file cache.
+
+    Making the mesh takes a worker about a second; every worker of every build needs
+    the same one. The cache file's name is a hash of everything the mesh depends on
+    (the arguments, the project and NumPy versions and the source of the modules that
+    make it), so a changed mesher never meets an old file. Without a writable cache
+    folder the mesh is made every time.
+
+    Parameters
+    ----------
+    hand_length_m : float
+    spacing_m : float
+        Mesher grid spacing, metres.
+
+    Returns
+    -------
+    HandMesh
+        The same arrays, bit for bit, as a freshly made mesh.
+    """
+    skeleton = make_skeleton(hand_length_m)
+    key = hashlib.sha256(
+        json.dumps([glovedb.__version__, np.__version__, hand_length_m, spacing_m]).encode()
+    )
+    for module in (glovedb.hand_model, glovedb.mesh, glovedb.shape, glovedb.surface_nets):
+        key.update(Path(str(module.__file__)).read_bytes())
+    path = mesh_cache_folder() / f"hand_mesh-{key.hexdigest()[:16]}.npz"
+    try:
+        with np.load(path, allow_pickle=False) as cached:
+            return HandMesh(skeleton, cached["rest_vertices_m"], cached["faces"], cached["weights"])
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile):
+        pass
+    mesh = make_hand_mesh(skeleton, spacing_m=spacing_m)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # Unique temporary name, then rename: workers may write the same file at once.
+        temporary = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")
+        np.savez(
+            temporary,
+            rest_vertices_m=mesh.rest_vertices_m,
+            faces=mesh.faces,
+            weights=mesh.weights,
+        )
+        os.replace(temporary, path)
+    except OSError:
+        pass
+    return mesh
+
+
 class PostureRenderer:
-    """Renders all views of any posture of a plan (one OpenGL context).
+    """Renders the tiny images of every view of any posture of a plan.
+
+    Labels come from the software rasteriser (:mod:`builder.rasterize`): no OpenGL
+    context, so a renderer is cheap to make in any process.
 
     Parameters
     ----------
@@ -199,15 +266,34 @@ class PostureRenderer:
     """
 
     def __init__(self, plan: BuildPlan) -> None:
-        from builder.render import GloveRenderer
-        from glovedb.hand_model import make_skeleton
-        from glovedb.mesh import make_hand_mesh
+        from glovedb.pattern import face_labels, load_pattern
 
         self.plan = plan
-        mesh = make_hand_mesh(
-            make_skeleton(plan.config.hand_length_m), spacing_m=plan.config.images.mesh_spacing_m
+        self.mesh = cached_hand_mesh(plan.config.hand_length_m, plan.config.images.mesh_spacing_m)
+        self._faces = self.mesh.faces.astype(np.int32)
+        self._face_labels = face_labels(self.mesh, load_pattern())
+
+    def label_images(
+        self, posture_rad: ArrayLike, rotations: ArrayLike, translations_m: ArrayLike
+    ) -> NDArray[np.uint8]:
+        """Label images ``(V, H, W) uint8`` of one posture in many global poses.
+
+        Parameters
+        ----------
+        posture_rad : (20,) float
+        rotations : (V, 3, 3) float
+            ``cam_R_hand``.
+        translations_m : (V, 3) float
+            Wrist in the camera frame.
+        """
+        return rasterize_labels(
+            pose_mesh(self.mesh, posture_rad),
+            self._faces,
+            self._face_labels,
+            rotations,
+            translations_m,
+            self.plan.camera,
         )
-        self._renderer = GloveRenderer(plan.camera, mesh=mesh)
 
     def tiny_images(self, posture_index: int) -> dict[int, NDArray[np.uint8]]:
         """``{size: (V, s, s) uint8}`` for every view of the posture, view-major order
@@ -215,52 +301,64 @@ class PostureRenderer:
         plan = self.plan
         rolls = len(plan.roll_rad)
         # Render roll 0 of every camera position; the other rolls rotate its pixels.
-        label_images = self._renderer.label_images(
+        label_images = self.label_images(
             plan.postures_rad[posture_index],
             plan.view_rotations[::rolls],
             plan.view_translations_m[::rolls],
         )
         if label_images[:, [0, -1], :].any() or label_images[:, :, [0, -1]].any():
             raise RuntimeError("the hand left the render; the render camera is too narrow")
-        per_position = []
-        for labels in label_images:
-            rows, cols = np.nonzero(labels)
-            pixels = np.stack([cols, rows], axis=1).astype(np.float64)
-            per_position.append(
-                tiny_images_from_pixels(
-                    pixels, labels[rows, cols], plan.config.images.sizes, rolls_rad=plan.roll_rad
-                )
-            )
-        return {
-            size: np.concatenate([images[size] for images in per_position])
-            for size in plan.config.images.sizes
-        }
+        return tiny_images_of_label_images(
+            label_images, plan.config.images.sizes, rolls_rad=plan.roll_rad
+        )
 
     def close(self) -> None:
-        self._renderer.close()
+        """Nothing to release (kept so that renderers of any kind close alike)."""
 
 
 # Shards ----------------------------------------------------------------------------
 
 
 def shard_path(parts: Path, posture_index: int) -> Path:
-    return parts / f"posture_{posture_index:07d}.npz"
+    return parts / f"posture_{posture_index:07d}.npy"
 
 
 def write_shard(parts: Path, posture_index: int, images: dict[int, NDArray[np.uint8]]) -> None:
-    """Write one posture's images atomically (temporary name, then rename)."""
+    """Write one posture's images atomically (temporary name, then rename).
+
+    A shard is one flat uint8 ``.npy``: the images of every size, smallest size first,
+    each ``(V, s, s)`` block contiguous. Uncompressed: compressing costs a quarter of
+    a worker's time, and shards are temporary (they take about as much disk as the
+    finished database); no zip either, so a shard is read back as a memory map.
+    """
     final = shard_path(parts, posture_index)
-    temporary = final.with_suffix(".tmp.npz")
-    arrays: dict[str, Any] = {f"tiny_{size}": array for size, array in images.items()}
-    # Uncompressed: compressing costs a quarter of a worker's time, and shards are
-    # temporary (they take about as much disk as the finished database).
-    np.savez(temporary, **arrays)
+    temporary = final.with_suffix(".tmp.npy")
+    blocks = [np.ascontiguousarray(images[size], np.uint8) for size in sorted(images)]
+    header = {
+        "descr": np.lib.format.dtype_to_descr(np.dtype(np.uint8)),
+        "fortran_order": False,
+        "shape": (sum(block.size for block in blocks),),
+    }
+    with open(temporary, "wb") as file:
+        np.lib.format.write_array_header_1_0(file, header)
+        for block in blocks:
+            file.write(block.data)
     os.replace(temporary, final)
 
 
-def read_shard(parts: Path, posture_index: int, sizes: tuple[int, ...]) -> dict[int, NDArray]:
-    with np.load(shard_path(parts, posture_index), allow_pickle=False) as data:
-        return {size: data[f"tiny_{size}"] for size in sizes}
+def read_shard(
+    parts: Path, posture_index: int, sizes: tuple[int, ...], views: int
+) -> dict[int, NDArray[np.uint8]]:
+    """``{size: (views, s, s) uint8}`` of one shard, as views of a read-only memory map."""
+    shard = np.load(shard_path(parts, posture_index), mmap_mode="r", allow_pickle=False)
+    if shard.shape != (views * sum(s * s for s in sizes),):
+        raise ValueError(f"{shard_path(parts, posture_index)}: unexpected shard shape")
+    images, start = {}, 0
+    for size in sorted(sizes):
+        stop = start + views * size * size
+        images[size] = shard[start:stop].reshape(views, size, size)
+        start = stop
+    return images
 
 
 # State of a worker process (its renderer), set once by the pool's initializer: the
@@ -269,11 +367,25 @@ def read_shard(parts: Path, posture_index: int, sizes: tuple[int, ...]) -> dict[
 _WORKER: dict[str, Any] = {}
 
 
-def _worker_start(settings: dict[str, Any], base_dir: str, parts: str) -> None:
-    # One rasteriser thread per worker: the workers already fill the cores.
-    os.environ["LP_NUM_THREADS"] = "1"
-    config = config_from_dict(settings, base_dir=base_dir)
-    _WORKER["renderer"] = PostureRenderer(make_plan(config))
+def single_threaded_blas() -> Any:
+    """Limit BLAS to one thread (until ``restore_original_limits()`` or, used as a
+    context manager, until the block ends).
+
+    A worker fills a core by itself; OpenBLAS's extra threads would only spin for
+    milliseconds after every matrix product (the skinning's), taking about a fifth of
+    the CPU time from the other workers.
+    """
+    # A declared dependency (scikit-learn needs it too).
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=1, user_api="blas")
+
+
+def _worker_start(plan: BuildPlan, parts: str) -> None:
+    single_threaded_blas()
+    # The plan travels to the worker: planning again (e.g. a farthest-point selection
+    # of 1,000 out of 20,000 postures) would take seconds in every worker.
+    _WORKER["renderer"] = PostureRenderer(plan)
     _WORKER["parts"] = Path(parts)
 
 
@@ -394,7 +506,7 @@ def _prepare_parts(parts: Path, settings: dict[str, Any], resume: bool) -> None:
             previous = None
         if previous != json.loads(json.dumps(settings)):
             raise ValueError(f"{parts}: the interrupted build has other settings; delete it")
-        for leftover in parts.glob("*.tmp.npz"):
+        for leftover in parts.glob("*.tmp.npy"):
             leftover.unlink()
         return
     parts.mkdir()
@@ -422,17 +534,15 @@ def _render_shards(plan: BuildPlan, parts: Path, pending: list[int], workers: in
         renderer = PostureRenderer(plan)
         try:
             for index in pending:
-                write_shard(parts, index, renderer.tiny_images(index))
+                with single_threaded_blas():
+                    images = renderer.tiny_images(index)
+                write_shard(parts, index, images)
                 yield index
         finally:
             renderer.close()
         return
     context = multiprocessing.get_context("spawn")
-    arguments = (
-        {k: v for k, v in plan.config.as_dict().items() if k != "base_dir"},
-        plan.config.base_dir,
-        str(parts),
-    )
+    arguments = (plan, str(parts))
     with ProcessPoolExecutor(
         max_workers=workers, mp_context=context, initializer=_worker_start, initargs=arguments
     ) as pool:
@@ -481,11 +591,19 @@ def _assemble(plan: BuildPlan, parts: Path, partial: Path, settings: dict[str, A
             )
             for size in sizes
         }
-        batch = max(1, (1 << 26) // (views * sum(s * s for s in sizes)))
+        # Chunked (compressed) sizes are written in batches of whole chunks' worth of
+        # postures; contiguous ones posture by posture, straight from the shard's map.
+        chunked = [size for size, dataset in datasets.items() if dataset.chunks is not None]
+        batch = max(1, (1 << 26) // (views * sum(s * s for s in chunked or sizes)))
         for start in range(0, postures, batch):
             stop = min(postures, start + batch)
-            shards = [read_shard(parts, p, sizes) for p in range(start, stop)]
-            for size, dataset in datasets.items():
+            shards = [read_shard(parts, p, sizes, views) for p in range(start, stop)]
+            for size in chunked:
                 rows = np.concatenate([shard[size] for shard in shards])
-                dataset[start * views : stop * views] = rows
+                datasets[size][start * views : stop * views] = rows
+            for offset, shard in enumerate(shards):
+                first = (start + offset) * views
+                for size, dataset in datasets.items():
+                    if size not in chunked:
+                        dataset[first : first + views] = shard[size]
         attrs["complete"] = True

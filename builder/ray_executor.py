@@ -3,9 +3,9 @@
 The driver (the process that runs the build) starts a local Ray instance or connects
 to a cluster, puts the :class:`~builder.build.BuildPlan` into the object store once
 and creates one actor per free CPU. Each actor holds one
-:class:`~builder.build.PostureRenderer`, made in the actor's own process (Ray starts
-worker processes fresh, so no OpenGL context ever crosses a fork), and returns a
-posture's tiny images through the object store. The driver writes every shard into
+:class:`~builder.build.PostureRenderer` (a software rasteriser: no OpenGL context),
+made in the actor's own process, and returns a posture's tiny images through the
+object store. The driver writes every shard into
 its own ``DB.h5.parts/`` with :func:`~builder.build.write_shard`, so the nodes need no
 shared file system, and :func:`~builder.build.build_database` then assembles the file
 exactly as for a local build: the bytes do not depend on the executor.
@@ -16,7 +16,6 @@ exactly as for a local build: the bytes do not depend on the executor.
 from __future__ import annotations
 
 import logging
-import os
 import socket
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -28,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import glovedb
-from builder.build import BuildPlan, PostureRenderer, write_shard
+from builder.build import BuildPlan, PostureRenderer, single_threaded_blas, write_shard
 
 # Seconds to wait for the cluster's address to accept a connection: Ray itself
 # retries an unreachable address for minutes.
@@ -41,11 +40,10 @@ ShardRenderer = Callable[[BuildPlan, Path, list[int]], Iterator[int]]
 
 
 class _RenderActor:
-    """One Ray worker: an OpenGL renderer for every posture of the plan."""
+    """One Ray worker: a renderer for every posture of the plan."""
 
     def __init__(self, plan: BuildPlan) -> None:
-        # One rasteriser thread per actor: the actors already fill the CPUs.
-        os.environ["LP_NUM_THREADS"] = "1"
+        single_threaded_blas()
         self._renderer = PostureRenderer(plan)
 
     def version(self) -> str:

@@ -59,22 +59,7 @@ def _srgb_to_linear(srgb: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 class _SingleSampleRenderer(pyrender.Renderer):
-    """pyrender's renderer with a single-sample framebuffer (no anti-aliasing).
-
-    With ``labels_only`` set, a render reads back just the red channel (where the
-    label pass writes the class) and no depth: the fast path for database builds.
-    """
-
-    labels_only = False
-
-    def _read_main_framebuffer(self, scene: pyrender.Scene, flags: int) -> Any:
-        if not self.labels_only:
-            return super()._read_main_framebuffer(scene, flags)
-        width, height = self._main_fb_dims
-        # Single-sample: the framebuffer can be read directly, without pyrender's blit.
-        GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb_ms)
-        red = GL.glReadPixels(0, 0, width, height, GL.GL_RED, GL.GL_UNSIGNED_BYTE)
-        return np.frombuffer(red, dtype=np.uint8).reshape(height, width)[::-1], None
+    """pyrender's renderer with a single-sample framebuffer (no anti-aliasing)."""
 
     def _configure_main_framebuffer(self) -> None:
         dims_before = self._main_fb_dims
@@ -293,38 +278,6 @@ class GloveRenderer(Closing):
         if self._renderer is None:
             raise ValueError("the renderer is closed")
         return self._renderer
-
-    def label_images(
-        self, posture_rad: ArrayLike, rotations: ArrayLike, translations_m: ArrayLike
-    ) -> NDArray[np.uint8]:
-        """Only the class labels of one posture in many global poses: ``(V, H, W) uint8``.
-
-        The fastest render (no depth is read back); arguments as
-        :meth:`render_label_views`.
-        """
-        rotations = as_array("rotations", rotations, (None, 3, 3), np.float64, finite=True)
-        translations = as_array(
-            "translations_m", translations_m, (len(rotations), 3), np.float64, finite=True
-        )
-        hand_vertices = self._posed_hand(posture_rad)
-        self._set_mesh("label", hand_vertices[self._source_vertex], None, self._label_colors)
-        renderer = self._live_renderer()
-        images = np.empty((len(rotations), self.camera.height, self.camera.width), np.uint8)
-        inner = renderer._renderer
-        inner.labels_only = True
-        try:
-            for index, (rotation, translation) in enumerate(
-                zip(rotations, translations, strict=True)
-            ):
-                self._label_scene.set_pose(
-                    self._camera_nodes["label"], _camera_pose(rotation, translation)
-                )
-                images[index], _ = renderer.render(
-                    self._label_scene, flags=pyrender.RenderFlags.FLAT
-                )
-        finally:
-            inner.labels_only = False
-        return images
 
     def _posed_hand(self, posture_rad: ArrayLike) -> NDArray[np.float64]:
         posture = as_array("posture_rad", posture_rad, (N_JOINTS,), np.float64, finite=True)

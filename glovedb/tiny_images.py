@@ -74,7 +74,6 @@ def tiny_images_from_pixels(
     rolls = as_array("rolls_rad", rolls_rad, (None,), np.float64, finite=True)
     if len(classes) and (classes.min() < 1 or classes.max() >= N_LABELS):
         raise ValueError("labels: glove pixels must have classes 1..10")
-    largest = sizes[-1]
     if len(uv) == 0:
         return {s: np.zeros((len(rolls), s, s), np.uint8) for s in sizes}
 
@@ -82,21 +81,56 @@ def tiny_images_from_pixels(
     # A camera turned by phi about +z sees x' = x cos - y sin, y' = x sin + y cos, and
     # with fx == fy its pixels turn the same way about the principal point.
     centred = uv - uv.mean(axis=0)
-    counts = _tiny_kernels.cell_counts(
+    outs = tuple(np.empty((len(rolls), s, s), np.uint8) for s in reversed(sizes))
+    _tiny_kernels.tiny_images_into(
         np.ascontiguousarray(centred[:, 0]),
         np.ascontiguousarray(centred[:, 1]),
         np.ascontiguousarray(classes),
         np.cos(rolls),
         np.sin(rolls),
-        largest,
+        outs,
+        0,
         N_LABELS,
     )
-    images = {}
-    for size in reversed(sizes):
-        while counts.shape[1] > size:
-            counts = _tiny_kernels.halve(counts)
-        images[size] = _tiny_kernels.majority(counts)
-    return {s: images[s] for s in sizes}
+    return dict(zip(reversed(sizes), outs, strict=True))
+
+
+def tiny_images_of_label_images(
+    label_images: ArrayLike,
+    sizes: Sequence[int] = DEFAULT_SIZES,
+    *,
+    rolls_rad: ArrayLike = (0.0,),
+) -> dict[int, NDArray[np.uint8]]:
+    """Tiny images of many label images, each for many image rotations.
+
+    The same images as :func:`tiny_images_from_pixels` of each image's glove pixels,
+    in one compiled pass without intermediate arrays (the database builder's path).
+
+    Parameters
+    ----------
+    label_images : (P, H, W) uint8
+        0 background, 1..10 glove classes.
+    sizes : sequence of int
+        Powers of two; every one must divide the largest.
+    rolls_rad : (R,) float
+        As in :func:`tiny_images_from_pixels`.
+
+    Returns
+    -------
+    dict of int to (P * R, s, s) uint8
+        Image ``p``, roll ``r`` at row ``p * R + r``.
+    """
+    sizes = check_sizes(sizes)
+    images = as_array("label_images", label_images, (None, None, None), kind="u")
+    rolls = as_array("rolls_rad", rolls_rad, (None,), np.float64, finite=True)
+    if images.size and images.max() >= N_LABELS:
+        raise ValueError("label_images: classes must be 0..10")
+    images = images.astype(np.uint8, copy=False)
+    outs = tuple(np.empty((len(images) * len(rolls), s, s), np.uint8) for s in reversed(sizes))
+    _tiny_kernels.label_images_into(
+        np.ascontiguousarray(images), np.cos(rolls), np.sin(rolls), outs, N_LABELS
+    )
+    return dict(zip(reversed(sizes), outs, strict=True))
 
 
 def tiny_images(

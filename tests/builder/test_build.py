@@ -85,12 +85,12 @@ def test_resume_after_a_killed_build_equals_an_uninterrupted_build(tmp_path):
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     parts = tmp_path / "six.h5.parts"
     deadline = time.time() + 120
-    while len(list(parts.glob("posture_*.npz"))) < 2 and time.time() < deadline:
+    while len(list(parts.glob("posture_*.npy"))) < 2 and time.time() < deadline:
         time.sleep(0.05)
     os.kill(process.pid, signal.SIGKILL)
     process.wait()
     assert not out.exists(), "an interrupted build must not leave a database behind"
-    assert 2 <= len(list(parts.glob("posture_*.npz"))) < 6
+    assert 2 <= len(list(parts.glob("posture_*.npy"))) < 6
 
     again = subprocess.run(command, capture_output=True, text=True)
     assert again.returncode == 2 and "--resume" in again.stderr
@@ -126,7 +126,7 @@ def test_rolling_pixels_equals_rendering_a_rolled_camera():
         rolled = renderer.tiny_images(2)  # views: position-major, 18 rolls each
         posture = plan.postures_rad[2]
         for view in (1, 9, 16, 18 * 7 + 5, 18 * 30 + 11):
-            rendered = renderer._renderer.label_images(
+            rendered = renderer.label_images(
                 posture,
                 plan.view_rotations[view : view + 1],
                 plan.view_translations_m[view : view + 1],
@@ -140,6 +140,31 @@ def test_rolling_pixels_equals_rendering_a_rolled_camera():
                 assert np.mean(direct[size] != rolled[size][view]) < 0.1
     finally:
         renderer.close()
+
+
+def test_the_cached_mesh_equals_a_fresh_one(tmp_path, monkeypatch):
+    from builder.build import cached_hand_mesh, mesh_cache_folder
+    from glovedb.hand_model import make_skeleton
+    from glovedb.mesh import make_hand_mesh
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    fresh = make_hand_mesh(make_skeleton(0.18), spacing_m=0.004)
+    first = cached_hand_mesh(0.18, 0.004)
+    assert len(list(mesh_cache_folder().glob("*.npz"))) == 1
+    again = cached_hand_mesh(0.18, 0.004)
+    for mesh in (first, again):
+        np.testing.assert_array_equal(mesh.skeleton.offsets_m, fresh.skeleton.offsets_m)
+        for name in ("rest_vertices_m", "faces", "weights"):
+            expected = getattr(fresh, name)
+            assert getattr(mesh, name).dtype == expected.dtype
+            np.testing.assert_array_equal(getattr(mesh, name), expected)
+    other = cached_hand_mesh(0.18, 0.005)
+    assert len(other.faces) < len(fresh.faces)
+    assert len(list(mesh_cache_folder().glob("*.npz"))) == 2
+    # A damaged file is made again.
+    for path in mesh_cache_folder().glob("*.npz"):
+        path.write_bytes(b"not a zip")
+    np.testing.assert_array_equal(cached_hand_mesh(0.18, 0.004).faces, fresh.faces)
 
 
 def test_tiny_images_do_not_depend_on_distance_or_image_position(renderer):

@@ -35,7 +35,7 @@ def test_a_ray_build_equals_a_local_build_also_when_resumed(small_database, tmp_
     with pytest.raises(InterruptedBuildError):
         build_database(config, resumed, workers=2, executor="ray", progress=stop_after_first_shard)
     assert not resumed.exists()
-    assert len(list((tmp_path / "resumed.h5.parts").glob("posture_*.npz"))) >= 1
+    assert len(list((tmp_path / "resumed.h5.parts").glob("posture_*.npy"))) >= 1
     report = build_database(config, resumed, workers=2, executor="ray", resume=True)
     assert report.rendered_postures <= 1
     assert resumed.read_bytes() == small_database.read_bytes()

@@ -4,7 +4,12 @@ import numpy as np
 import pytest
 
 from glovedb.rotations import geodesic_angle
-from glovedb.tiny_images import check_sizes, tiny_images, tiny_images_from_pixels
+from glovedb.tiny_images import (
+    check_sizes,
+    tiny_images,
+    tiny_images_from_pixels,
+    tiny_images_of_label_images,
+)
 from glovedb.views import HAND_CENTRE, database_views, icosphere
 
 
@@ -57,6 +62,42 @@ def test_quarter_turn_roll_rotates_the_tiny_image():
     # A camera turned +90 degrees about +z sees the image turned 90 degrees clockwise.
     for size in (8, 16, 32, 64):
         np.testing.assert_array_equal(turned[size][1], np.rot90(turned[size][0], k=-1))
+
+
+@pytest.mark.parametrize("sizes", [(8, 16, 32, 64), (8, 64), (4, 32)])
+def test_label_images_path_equals_the_pixel_path(sizes):
+    """The builder's batched path makes the same bytes as the pixels of each image."""
+    images = np.stack(
+        [blob_image(), blob_image(offset=(20, 70), scale=2), np.zeros((120, 160), np.uint8)]
+    )
+    images[0, 50:53, 100:140] = 1  # a thin bar: sub-pixel sampling at every size
+    rolls = np.linspace(0.0, 2 * np.pi, 7, endpoint=False)
+    batched = tiny_images_of_label_images(images, sizes, rolls_rad=rolls)
+    assert sorted(batched) == sorted(sizes)
+    for index, image in enumerate(images):
+        rows, cols = np.nonzero(image)
+        pixels = np.stack([cols, rows], axis=1).astype(float)
+        single = tiny_images_from_pixels(pixels, image[rows, cols], sizes, rolls_rad=rolls)
+        for size in sizes:
+            assert batched[size].shape == (3 * 7, size, size)
+            assert batched[size].dtype == np.uint8
+            np.testing.assert_array_equal(batched[size][index * 7 : index * 7 + 7], single[size])
+    assert not batched[sizes[0]][14:].any()
+    with pytest.raises(ValueError, match=r"classes must be 0\.\.10"):
+        tiny_images_of_label_images(np.full((1, 4, 4), 11, np.uint8))
+    with pytest.raises(ValueError, match=r"classes must be 0\.\.10"):
+        tiny_images_of_label_images(np.full((1, 4, 4), 257, np.uint16))
+    with pytest.raises(TypeError, match="label_images"):
+        tiny_images_of_label_images(np.zeros((1, 4, 4)))
+
+
+def test_smaller_sizes_are_the_same_whichever_sizes_are_asked_for():
+    image = blob_image(scale=2)
+    every = tiny_images(image)
+    for sizes in ([8, 64], [16], [32, 8]):
+        some = tiny_images(image, sizes=sizes)
+        for size in sizes:
+            np.testing.assert_array_equal(some[size], every[size])
 
 
 def test_empty_images_and_bad_input():
