@@ -48,6 +48,7 @@ import glovedb.surface_nets
 from builder.config import DatabaseConfig
 from builder.rasterize import rasterize_labels
 from builder.sampling import farthest_point_selection, synergy_postures
+from glovedb._threads import single_threaded_blas
 from glovedb.camera import CameraIntrinsics
 from glovedb.database import FORMAT_NAME, FORMAT_VERSION, image_dataset_options
 from glovedb.hand_model import forward_kinematics, make_skeleton
@@ -365,20 +366,6 @@ def read_shard(
 # only way a ProcessPoolExecutor task can reach per-process state. Never used in the
 # main process.
 _WORKER: dict[str, Any] = {}
-
-
-def single_threaded_blas() -> Any:
-    """Limit BLAS to one thread (until ``restore_original_limits()`` or, used as a
-    context manager, until the block ends).
-
-    A worker fills a core by itself; OpenBLAS's extra threads would only spin for
-    milliseconds after every matrix product (the skinning's), taking about a fifth of
-    the CPU time from the other workers.
-    """
-    # A declared dependency (scikit-learn needs it too).
-    from threadpoolctl import threadpool_limits
-
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 def _worker_start(plan: BuildPlan, parts: str) -> None:

@@ -27,7 +27,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 import glovedb
-from builder.build import BuildPlan, PostureRenderer, single_threaded_blas, write_shard
+from builder.build import BuildPlan, PostureRenderer, write_shard
+from glovedb._threads import single_threaded_blas
 
 # Seconds to wait for the cluster's address to accept a connection: Ray itself
 # retries an unreachable address for minutes.

@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from glovedb._closing import Closing
+from glovedb._threads import single_threaded_blas
 from glovedb.camera import CameraIntrinsics
 from glovedb.hand_model import FINGERS, FINGERTIP_KEYPOINTS, forward_kinematics, make_skeleton
 from glovedb.lookup import DatabaseIndex, default_cascade
@@ -183,6 +184,11 @@ class Tracker(Closing):
     settings : TrackerSettings, optional
     color_table : ColorTable, optional
         Defaults to the table from the glove pattern's nominal colors.
+
+    Notes
+    -----
+    While a tracker is open, BLAS runs on one thread in this process
+    (:func:`glovedb._threads.single_threaded_blas`); :meth:`close` restores it.
     """
 
     def __init__(
@@ -193,6 +199,8 @@ class Tracker(Closing):
         color_table: ColorTable | None = None,
     ) -> None:
         self.settings = settings or TrackerSettings()
+        # One BLAS thread while this tracker lives: see glovedb._threads.
+        self._blas_limit = single_threaded_blas()
         self.index = DatabaseIndex(database)
         hand_length = self.index.hand_length_m
         pattern = load_pattern()
@@ -351,6 +359,7 @@ class Tracker(Closing):
 
     def close(self) -> None:
         self.index.close()
+        self._blas_limit.restore_original_limits()
 
 
 def _ray_rotation(intrinsics: CameraIntrinsics, pixel: NDArray[np.float64]) -> NDArray[np.float64]:
