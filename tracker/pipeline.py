@@ -91,7 +91,7 @@ class TrackerSettings:
     icp_max_points: int = 500
     smoothing_frames: int = 3
     mesh_spacing_m: float = 0.003
-    refine_iterations: int = 2
+    refine_iterations: int = 3
     refine_prior: float = 0.02
     refine_max_points: int = 500
     workers: int | None = None

@@ -40,7 +40,7 @@ def add_tracker_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--refine-iterations",
         type=int,
-        help="steps of the posture refinement (default 2; 3 is more accurate, 0 turns it off)",
+        help="steps of the posture refinement (default 3; 0 turns it off)",
     )
 
 
