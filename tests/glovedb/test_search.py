@@ -268,15 +268,19 @@ def test_weighted_rotation_average_rejects_bad_weights() -> None:
 def test_interpolate_pose_weights_by_inverse_error() -> None:
     postures = np.stack([np.zeros(20), np.ones(20), np.full(20, 5.0)])
     rotations = np.stack([np.eye(3), np.eye(3), np.eye(3)])
-    pose = interpolate_pose(
-        np.array([1.0, 3.0, np.inf], np.float32), postures, rotations, epsilon_px=1.0
-    )
+    errors = np.array([1.0, 3.0, np.inf], np.float32)
+    pose = interpolate_pose(errors, postures, rotations, epsilon_px=1.0, power=1.0)
     assert isinstance(pose, InterpolatedPose)
     assert pose.valid
     # weights 1/2 and 1/4, normalised: 2/3 and 1/3; the infinite error gets none
     np.testing.assert_allclose(pose.weights, [2 / 3, 1 / 3, 0.0], rtol=1e-12)
     np.testing.assert_allclose(pose.posture_rad, np.full(20, 1 / 3), rtol=1e-12)
     np.testing.assert_allclose(pose.rotation, np.eye(3), atol=1e-12)
+    # By default the squares: 1/4 and 1/16, normalised 4/5 and 1/5.
+    squared = interpolate_pose(errors, postures, rotations, epsilon_px=1.0)
+    np.testing.assert_allclose(squared.weights, [4 / 5, 1 / 5, 0.0], rtol=1e-12)
+    with pytest.raises(ValueError, match="power"):
+        interpolate_pose(errors, postures, rotations, power=0.0)
 
 
 def test_interpolate_pose_of_an_exact_match_is_nearly_that_pose() -> None:
