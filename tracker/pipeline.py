@@ -7,7 +7,12 @@ Per frame:
    (:mod:`tracker.point_cloud`); too few glove pixels means "no hand";
 3. **look up** the tiny images of the hand's pixels in the database
    (:class:`glovedb.lookup.DatabaseIndex`): posture ``theta`` and rotation ``R_db``
-   blended from the nearest entries. Database views look at the hand along the
+   blended from the nearest entries. The last stage keeps a few more candidates
+   (``lookup_candidates``), which are re-ranked by their matching error plus
+   ``temporal_prior_px`` per radian of mean joint-angle difference from the previous
+   frame's posture (:func:`temporal_scores`): where a view is ambiguous (the back of
+   a fist looks much like the back of a flat hand at 64 x 64 pixels) the lookup keeps
+   to the posture it was in. Database views look at the hand along the
    optical axis; a hand seen off-axis is seen along the ray ``d`` through the
    centre of its pixels, so the coarse rotation is ``R = R_ray @ R_db`` with
    ``R_ray`` the smallest rotation taking +z to ``d``;
@@ -29,17 +34,24 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from glovedb._closing import Closing
 from glovedb._threads import single_threaded_blas
+from glovedb._validate import as_array
 from glovedb.camera import CameraIntrinsics
-from glovedb.hand_model import FINGERS, FINGERTIP_KEYPOINTS, forward_kinematics, make_skeleton
+from glovedb.hand_model import (
+    FINGERS,
+    FINGERTIP_KEYPOINTS,
+    N_JOINTS,
+    forward_kinematics,
+    make_skeleton,
+)
 from glovedb.lookup import DatabaseIndex, default_cascade
 from glovedb.mesh import make_hand_mesh, pose_mesh, vertex_normals
 from glovedb.pattern import load_pattern, split_by_label
 from glovedb.rotations import axis_angle_to_matrix, geodesic_angle
-from glovedb.search import parse_cascade
+from glovedb.search import interpolate_pose, parse_cascade
 from glovedb.tiny_images import tiny_images_from_pixels
 from tracker.classify import ColorTable, nominal_table
 from tracker.frames import Frame
@@ -77,6 +89,13 @@ class TrackerSettings:
         Pull toward the looked-up posture (metres of residual per radian).
     refine_max_points : int
         Cloud points used by the refinement.
+    lookup_candidates : int
+        Entries the cascade's last stage keeps for the temporal re-ranking (at least
+        its own k are blended).
+    temporal_prior_px : float
+        Matching error (pixels at the last stage's size) added per radian of mean
+        absolute joint-angle difference between a candidate's posture and the
+        previous frame's; 0 turns the re-ranking off.
     mesh_spacing_m : float
         Resolution of the model surface used by ICP.
     workers : int or None
@@ -94,6 +113,8 @@ class TrackerSettings:
     refine_iterations: int = 3
     refine_prior: float = 0.02
     refine_max_points: int = 500
+    lookup_candidates: int = 10
+    temporal_prior_px: float = 1.0
     workers: int | None = None
 
 
@@ -211,7 +232,14 @@ class Tracker(Closing):
         self._smoother = PoseSmoother(self.settings.smoothing_frames)
         self._sizes = self.index.resolutions
         self.cascade = self.settings.cascade or default_cascade(self._sizes)
-        parse_cascade(self.cascade, sizes=self._sizes)  # a bad cascade fails here, once
+        stages = parse_cascade(self.cascade, sizes=self._sizes)  # a bad cascade fails here
+        self._blend = stages[-1].k
+        wide = max(self._blend, self.settings.lookup_candidates)
+        self._search_cascade = ",".join(
+            f"{stage.size}:{max(stage.k, wide)}" for stage in stages
+        )  # every stage keeps at least as many as the widened last one
+        parse_cascade(self._search_cascade, sizes=self._sizes)
+        self._previous_posture: NDArray[np.float64] | None = None
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -245,14 +273,27 @@ class Tracker(Closing):
             region.pixels_uv.astype(np.float64), region.labels, self._sizes
         )
         query = {size: stack[0] for size, stack in stacks.items()}
-        lookup = self.index.lookup(query, self.cascade, workers=self.settings.workers)
+        search = self.index.search(query, self._search_cascade, workers=self.settings.workers)
+        candidate_postures = self.index.entry_postures(search.entry_ids)
+        scores = temporal_scores(
+            search.errors,
+            candidate_postures,
+            self._previous_posture,
+            self.settings.temporal_prior_px,
+        )
+        order = np.argsort(scores, kind="stable")[: self._blend]
+        pose = interpolate_pose(
+            scores[order],
+            candidate_postures[order],
+            self.index.entry_rotations(search.entry_ids[order]),
+        )
         lap("lookup")
-        if not lookup.pose.valid:
+        if not pose.valid:
             return self._not_found(frame, timing, started)
 
-        posture = lookup.pose.posture_rad
+        posture = pose.posture_rad
         centre_px = region.pixels_uv.mean(axis=0)
-        rotation = _ray_rotation(frame.intrinsics, centre_px) @ lookup.pose.rotation
+        rotation = _ray_rotation(frame.intrinsics, centre_px) @ pose.rotation
         surface = pose_mesh(self.mesh, posture)
         normals = vertex_normals(surface, self.mesh.faces)
         model, model_normals = surface[self.split.source_vertex], normals[self.split.source_vertex]
@@ -286,13 +327,16 @@ class Tracker(Closing):
             )
             lap("refine")
         posture, rotation, translation = self._smoother(posture, rotation, translation)
-        result = self._result(frame, posture, rotation, translation, lookup.search.errors[0], icp)
+        self._previous_posture = posture
+        best_error = float(search.errors[order[0]])
+        result = self._result(frame, posture, rotation, translation, best_error, icp)
         timing["total"] = (time.perf_counter() - started) * 1000.0
         return TrackingResult(**{**result, "timing_ms": timing})
 
     def reset(self) -> None:
         """Forget the past frames (start of a new sequence)."""
         self._smoother.reset()
+        self._previous_posture = None
 
     def _initial_translation(
         self,
@@ -353,13 +397,51 @@ class Tracker(Closing):
         }
 
     def _not_found(self, frame: Frame, timing: dict[str, float], started: float) -> TrackingResult:
-        self._smoother.reset()
+        self.reset()
         timing["total"] = (time.perf_counter() - started) * 1000.0
         return TrackingResult(frame=frame.index, hand_found=False, timing_ms=timing)
 
     def close(self) -> None:
         self.index.close()
         self._blas_limit.restore_original_limits()
+
+
+def temporal_scores(
+    errors: ArrayLike,
+    postures_rad: ArrayLike,
+    previous_rad: ArrayLike | None,
+    prior_px_per_rad: float,
+) -> NDArray[np.float64]:
+    """Matching errors plus a pull toward the previous frame's posture.
+
+    The tracker ranks the lookup's candidates by these scores and blends the best
+    with weights from them (:func:`glovedb.search.interpolate_pose`).
+
+    Parameters
+    ----------
+    errors : (k,) float
+        Matching errors of the candidates, pixels (``inf``: never preferred).
+    postures_rad : (k, 20) float
+        Their postures.
+    previous_rad : (20,) float or None
+        The previous frame's posture; None ranks by error alone.
+    prior_px_per_rad : float
+        Pixels of error per radian of mean absolute joint-angle difference.
+
+    Returns
+    -------
+    (k,) float64
+        ``error + prior_px_per_rad * mean(|posture - previous|)``, pixels; the errors
+        alone without a previous posture.
+    """
+    error = as_array("errors", errors, (None,), np.float64, kind="fiu")
+    postures = as_array("postures_rad", postures_rad, (len(error), N_JOINTS), np.float64)
+    if not prior_px_per_rad >= 0:
+        raise ValueError(f"prior_px_per_rad: must be 0 or more, got {prior_px_per_rad}")
+    if previous_rad is None or prior_px_per_rad == 0:
+        return error
+    previous = as_array("previous_rad", previous_rad, (N_JOINTS,), np.float64)
+    return error + prior_px_per_rad * np.abs(postures - previous).mean(axis=1)
 
 
 def _ray_rotation(intrinsics: CameraIntrinsics, pixel: NDArray[np.float64]) -> NDArray[np.float64]:

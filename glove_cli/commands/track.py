@@ -42,6 +42,12 @@ def add_tracker_options(parser: argparse.ArgumentParser) -> None:
         type=int,
         help="steps of the posture refinement (default 3; 0 turns it off)",
     )
+    parser.add_argument(
+        "--temporal-prior",
+        type=float,
+        help="lookup pull toward the previous frame's posture, pixels per radian "
+        "(default 1; 0 turns it off)",
+    )
 
 
 def make_tracker(args: argparse.Namespace) -> Tracker:
@@ -63,6 +69,10 @@ def make_tracker(args: argparse.Namespace) -> Tracker:
         if args.refine_iterations < 0:
             raise ValueError("--refine-iterations must be 0 or more")
         settings = replace(settings, refine_iterations=args.refine_iterations)
+    if args.temporal_prior is not None:
+        if not args.temporal_prior >= 0:
+            raise ValueError("--temporal-prior must be 0 or more")
+        settings = replace(settings, temporal_prior_px=args.temporal_prior)
     colors = args.colors
     beside = default_table_path(args.db)
     if colors is None and beside.exists():

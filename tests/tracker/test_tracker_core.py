@@ -180,3 +180,21 @@ def test_icp_converges_from_the_lookup_of_a_thesis_database(open_pinch_power_dat
             rotation_errors.append(np.degrees(geodesic_angle(result.rotation, rotation)))
             position_errors.append(np.linalg.norm(result.translation_m - translation))
     assert np.median(rotation_errors) < 1.0 and np.median(position_errors) < 0.002
+
+
+def test_temporal_scores_prefer_the_previous_posture_by_the_given_weight():
+    from tracker.pipeline import temporal_scores
+
+    errors = np.array([1.0, 1.2, np.inf])
+    postures = np.stack([np.full(20, 0.5), np.zeros(20), np.zeros(20)])
+    np.testing.assert_array_equal(temporal_scores(errors, postures, None, 1.0), errors)
+    np.testing.assert_array_equal(temporal_scores(errors, postures, np.zeros(20), 0.0), errors)
+    # 0.5 rad from the previous posture costs 0.5 px at 1 px/rad: the second
+    # candidate (error 1.2, no change) now beats the first (1.0 + 0.5).
+    scores = temporal_scores(errors, postures, np.zeros(20), 1.0)
+    np.testing.assert_allclose(scores[:2], [1.5, 1.2])
+    assert scores[2] == np.inf
+    with pytest.raises(ValueError, match="prior_px_per_rad"):
+        temporal_scores(errors, postures, np.zeros(20), -1.0)
+    with pytest.raises(ValueError, match="postures_rad"):
+        temporal_scores(errors, postures[:2], np.zeros(20), 1.0)
