@@ -10,6 +10,9 @@ Every example is one depth image of the hand model in a random scene:
 - **hand size**: hand length 0.16-0.21 m. Scaling a scene about the camera centre
   leaves the image unchanged and scales depth, so one mesh of the default length
   serves every size (render at ``t / s``, multiply depth by ``s``);
+- **forearm**: optionally an elliptic cylinder continuing the wrist, bent by a random
+  wrist flexion and deviation, added analytically to the depth (real frames show the
+  arm; the mesh ends in a short wrist cuff);
 - **background**: sometimes a plane behind the hand (a wall or a table, possibly only
   on one side of a line in the image), added analytically to the depth;
 - **sensor**: optionally half resolution (every second pixel) and the noise model of
@@ -98,6 +101,12 @@ class FingertipDataConfig:
         Noise presets (:data:`builder.depth_noise.NOISE_PRESETS`), one drawn per image.
     mirror_probability : float
         Share of examples mirrored into a left hand.
+    forearm_probability : float
+        Share of examples with a forearm (:func:`forearm_depth`).
+    wrist_flex_max_deg, wrist_deviation_max_deg : float
+        The forearm axis is turned from the hand's -y axis by a uniform wrist flexion
+        (about the hand's x axis) and deviation (about its z axis) within these bounds,
+        degrees.
     occlusion_tolerance_m : float
         A tip is hidden when the depth at its pixel is more than this in front of it.
     seed : int
@@ -126,6 +135,9 @@ class FingertipDataConfig:
     half_plane_probability: float = 0.5
     noise: tuple[str, ...] = ("kinect_v1", "realsense_d435")
     mirror_probability: float = 0.5
+    forearm_probability: float = 0.0
+    wrist_flex_max_deg: float = 50.0
+    wrist_deviation_max_deg: float = 25.0
     occlusion_tolerance_m: float = 0.015
     seed: int = 0
 
@@ -175,6 +187,9 @@ class Scene:
     noise : str
         Noise preset.
     mirrored : bool
+    forearm_rotation : (3, 3) float64 or None
+        ``hand_R_forearm``: the forearm runs along its frame's -y axis from the wrist;
+        None without a forearm.
     """
 
     posture_rad: NDArray[np.float64]
@@ -186,6 +201,7 @@ class Scene:
     half_resolution: bool
     noise: str
     mirrored: bool
+    forearm_rotation: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)
@@ -297,7 +313,83 @@ def sample_scene(
         half_resolution=bool(rng.uniform() < config.half_resolution_fraction),
         noise=str(config.noise[rng.integers(len(config.noise))]),
         mirrored=bool(rng.uniform() < config.mirror_probability),
+        forearm_rotation=_sample_forearm(config, rng),
     )
+
+
+def _sample_forearm(
+    config: FingertipDataConfig, rng: np.random.Generator
+) -> NDArray[np.float64] | None:
+    """``hand_R_forearm`` for a random wrist flexion and deviation, or None (no forearm)."""
+    # No draw at probability 0, so that older configs render the same scenes.
+    if config.forearm_probability <= 0 or not rng.uniform() < config.forearm_probability:
+        return None
+    flex = np.radians(rng.uniform(-config.wrist_flex_max_deg, config.wrist_flex_max_deg))
+    deviation = np.radians(
+        rng.uniform(-config.wrist_deviation_max_deg, config.wrist_deviation_max_deg)
+    )
+    c, s = np.cos(flex), np.sin(flex)
+    about_x = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    c, s = np.cos(deviation), np.sin(deviation)
+    about_z = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return about_z @ about_x
+
+
+FOREARM_HALF_AXES = (0.17, 0.12)
+"""Half width (hand x) and half thickness (hand z) of the forearm, in hand lengths."""
+
+FOREARM_LENGTH = 1.4
+"""Length of the forearm from the wrist, in hand lengths."""
+
+
+def forearm_depth(
+    shape: tuple[int, int],
+    intrinsics: NDArray[np.float64],
+    cam_R_forearm: NDArray[np.float64],
+    wrist_m: NDArray[np.float64],
+    hand_length_m: float,
+) -> NDArray[np.float32]:
+    """Depth of a forearm: the front surface of an elliptic cylinder from the wrist.
+
+    The cylinder runs from the wrist along the forearm frame's -y axis for
+    :data:`FOREARM_LENGTH` hand lengths, with the half axes :data:`FOREARM_HALF_AXES`
+    (x, z of that frame); it is open at both ends (the wrist end lies inside the
+    hand's wrist cuff).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        Image ``(H, W)``.
+    intrinsics : (4,) float64
+        ``(fx, fy, cx, cy)`` in pixels.
+    cam_R_forearm : (3, 3) float64
+        Forearm frame to camera frame.
+    wrist_m : (3,) float64
+        Wrist in the camera frame, metres.
+    hand_length_m : float
+
+    Returns
+    -------
+    (H, W) float32
+        Depth in metres, 0 where the ray misses the forearm.
+    """
+    fx, fy, cx, cy = intrinsics
+    v, u = np.indices(shape, dtype=np.float64)
+    # Rays z * (x, y, 1) in the forearm frame, scaled so the cross-section is a unit disc.
+    rays = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones(shape)], axis=-1) @ cam_R_forearm
+    origin = -cam_R_forearm.T @ wrist_m
+    half_x, half_z = (hand_length_m * a for a in FOREARM_HALF_AXES)
+    dx, dz = rays[..., 0] / half_x, rays[..., 2] / half_z
+    ox, oz = origin[0] / half_x, origin[2] / half_z
+    a = dx**2 + dz**2
+    b = 2.0 * (dx * ox + dz * oz)
+    c = ox**2 + oz**2 - 1.0
+    discriminant = b**2 - 4.0 * a * c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = (-b - np.sqrt(np.maximum(discriminant, 0.0))) / (2.0 * a)
+    along = origin[1] + z * rays[..., 1]
+    hit = (discriminant > 0) & (z > 0) & (along <= 0) & (along >= -FOREARM_LENGTH * hand_length_m)
+    return np.where(hit, z, 0.0).astype(np.float32)
 
 
 def visible_tips(
@@ -367,7 +459,8 @@ def render_scene(
     keypoints_hand = forward_kinematics(scene.posture_rad, renderer.mesh.skeleton).keypoints_m[0]
     keypoints = scale * keypoints_hand @ scene.rotation.T + scene.translation_m
     intrinsics = np.array([config.fx, config.fy, config.cx, config.cy])
-    depth = _add_plane(hand_depth, keypoints, scene, intrinsics)
+    depth = _add_forearm(hand_depth, scene, intrinsics)
+    depth = _add_plane(depth, hand_depth, keypoints, scene, intrinsics)
     if scene.half_resolution:
         depth = np.ascontiguousarray(depth[::2, ::2])
         intrinsics = intrinsics / 2
@@ -385,14 +478,32 @@ def render_scene(
     return FingertipExample(depth, intrinsics, tips, keypoints, scene)
 
 
+def _add_forearm(
+    hand_depth: NDArray[np.float32], scene: Scene, intrinsics: NDArray[np.float64]
+) -> NDArray[np.float32]:
+    if scene.forearm_rotation is None:
+        return hand_depth
+    arm = forearm_depth(
+        hand_depth.shape,
+        intrinsics,
+        scene.rotation @ scene.forearm_rotation,
+        scene.translation_m,
+        scene.hand_length_m,
+    )
+    in_front = (arm > 0) & ((hand_depth == 0) | (arm < hand_depth))
+    return np.where(in_front, arm, hand_depth).astype(np.float32)
+
+
 def _add_plane(
+    depth_m: NDArray[np.float32],
     hand_depth: NDArray[np.float32],
     keypoints_m: NDArray[np.float64],
     scene: Scene,
     intrinsics: NDArray[np.float64],
 ) -> NDArray[np.float32]:
+    """``depth_m`` with the scene's plane behind it; the gap counts from the hand alone."""
     if scene.plane is None:
-        return hand_depth
+        return depth_m
     on_hand = hand_depth > 0
     far = float(hand_depth[on_hand].max()) if on_hand.any() else float(keypoints_m[:, 2].max())
     centre = keypoints_m.mean(axis=0)
@@ -404,8 +515,9 @@ def _add_plane(
         v, u = np.indices(hand_depth.shape)
         a, b, c = scene.half_plane
         plane[a * u + b * v + c < 0] = 0.0
-    in_front = on_hand & ((plane == 0) | (hand_depth < plane))
-    return np.where(in_front, hand_depth, plane).astype(np.float32)
+    seen = depth_m > 0
+    in_front = seen & ((plane == 0) | (depth_m < plane))
+    return np.where(in_front, depth_m, plane).astype(np.float32)
 
 
 def named_posture_list() -> list[NDArray[np.float64]]:

@@ -6,7 +6,15 @@ camera frame (NaN for a fingertip that is not visible). Pixels within
 ``tip_radius_m`` (3D) of a visible fingertip are positives; each positive also carries
 its 3D offset to that fingertip. A scikit-learn forest learns the fingertip
 probability; every leaf then stores the mean offset of the positive training pixels
-that reach it (found with ``forest.apply``). The result is exported to the plain-array
+that reach it (found with ``forest.apply``).
+
+With ``forest_kind = "hough_extra_trees"`` the splits also care about the offsets, as
+in a Hough forest (Gall and Lempitsky, CVPR 2009): an extremely randomised regression
+forest fits the target ``(is_tip, w * is_tip * offset)`` with the summed squared error,
+which for the 0/1 label is proportional to the Gini impurity of a classifier. Splits
+then separate fingertip pixels whose tips lie in different directions, so the leaf
+offsets are consistent and the votes gather; the leaf's mean label is the fingertip
+probability. The result is exported to the plain-array
 :class:`tracker.fingertips.forest.FingertipForest`, so inference needs neither
 scikit-learn nor pickle.
 """
@@ -18,17 +26,18 @@ import math
 import os
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import asdict, dataclass, replace
-from typing import Any, Literal
+from typing import Any, Literal, TypeAlias
 
 import numpy as np
 import sklearn
 import tomllib
 from numpy.typing import ArrayLike, NDArray
-from sklearn.ensemble import ExtraTreesClassifier, RandomForestClassifier
+from sklearn.ensemble import ExtraTreesClassifier, ExtraTreesRegressor, RandomForestClassifier
 
-from builder.fingertip_data import FingertipDataConfig, data_config_from_dict
+from builder.fingertip_data import FingertipDataConfig, FingertipExample, data_config_from_dict
 from glovedb import __version__
 from glovedb._validate import as_array, check_choice, dataclass_from_table
+from glovedb.hand_model import FINGERTIP_KEYPOINTS
 from tracker.fingertips.detect import DetectorConfig, detector_config_from_dict
 from tracker.fingertips.features import (
     backproject,
@@ -41,8 +50,11 @@ from tracker.fingertips.features import (
 )
 from tracker.fingertips.forest import FingertipForest
 
-ForestKind = Literal["extra_trees", "random_forest"]
-FOREST_KINDS: tuple[ForestKind, ...] = ("extra_trees", "random_forest")
+ForestKind = Literal["extra_trees", "random_forest", "hough_extra_trees"]
+FOREST_KINDS: tuple[ForestKind, ...] = ("extra_trees", "random_forest", "hough_extra_trees")
+
+SklearnForest: TypeAlias = ExtraTreesClassifier | RandomForestClassifier | ExtraTreesRegressor
+"""The scikit-learn forests :func:`fit_classifier` may return."""
 
 N_TIPS = 5
 
@@ -76,7 +88,17 @@ class FingertipTrainingConfig:
         ``hard_negative_radius_m`` of a visible tip (finger sides, knuckles), where
         mistakes are likely; the rest are uniform over the image.
     hard_negative_radius_m : float
-    forest_kind : {"extra_trees", "random_forest"}
+    ignore_hidden_tips : bool
+        Sample no pixel within ``tip_radius_m`` of a hidden fingertip (when the images
+        give them): the end of a finger pointing away from the camera looks like a
+        fingertip while its tip keypoint lies behind the finger's own surface, so it
+        is neither a fingertip nor clearly not one.
+    forest_kind : {"extra_trees", "random_forest", "hough_extra_trees"}
+        Classification forests, or the Hough regression forest of the module
+        docstring.
+    offset_weight : float
+        Weight ``w`` of the offsets (per metre) in the ``hough_extra_trees`` objective:
+        at 50, an offset spread of 1 cm weighs like a label spread of 0.5.
     n_trees : int
     max_depth : int
     min_samples_leaf : int
@@ -98,7 +120,9 @@ class FingertipTrainingConfig:
     positive_fraction: float = 0.4
     hard_negative_fraction: float = 0.0
     hard_negative_radius_m: float = 0.06
+    ignore_hidden_tips: bool = False
     forest_kind: ForestKind = "extra_trees"
+    offset_weight: float = 50.0
     n_trees: int = 8
     max_depth: int = 18
     min_samples_leaf: int = 5
@@ -166,21 +190,31 @@ def sample_image(
     offsets_m: NDArray[np.float32],
     config: FingertipTrainingConfig,
     rng: np.random.Generator,
+    hidden_tips_m: NDArray[np.float64] | None = None,
 ) -> TrainingSamples:
-    """Sample, label and featurise the pixels of one training image."""
+    """Sample, label and featurise the pixels of one training image.
+
+    ``hidden_tips_m`` (K, 3), metres: fingertips that are not visible; with
+    ``config.ignore_hidden_tips`` no non-fingertip pixel within ``tip_radius_m`` of
+    them is sampled.
+    """
     near, far = config.depth_range_m
     masked = mask_depth_range(depth_m, near_m=near, far_m=far)
     masked = nearest_band(masked, band_m=config.depth_band_m)
     pixels = foreground_pixels(masked)
     points = backproject(pixels, masked[pixels[:, 1], pixels[:, 0]], intrinsics)
     is_tip, offset = label_points(points, tips_m, tip_radius_m=config.tip_radius_m)
+    negative = ~is_tip
+    if config.ignore_hidden_tips and hidden_tips_m is not None and len(hidden_tips_m):
+        gap = np.linalg.norm(points[:, None, :] - hidden_tips_m[None, :, :], axis=2)
+        negative &= gap.min(axis=1) > config.tip_radius_m
     positives = np.flatnonzero(is_tip)
     near = np.linalg.norm(offset, axis=1) <= config.hard_negative_radius_m
     n_pos = min(positives.size, int(config.positive_fraction * config.pixels_per_image))
     n_neg = config.pixels_per_image - n_pos
-    hard = np.flatnonzero(~is_tip & near)
+    hard = np.flatnonzero(negative & near)
     hard = rng.choice(hard, min(hard.size, int(config.hard_negative_fraction * n_neg)), False)
-    rest = np.setdiff1d(np.flatnonzero(~is_tip), hard, assume_unique=True)
+    rest = np.setdiff1d(np.flatnonzero(negative), hard, assume_unique=True)
     chosen = np.concatenate(
         [
             rng.choice(positives, n_pos, replace=False),
@@ -192,8 +226,11 @@ def sample_image(
     return TrainingSamples(features, is_tip[chosen], offset[chosen])
 
 
-TrainingImage = tuple[ArrayLike, ArrayLike, ArrayLike]
-"""One training image: depth ``(H, W)`` metres, intrinsics ``(4,)``, fingertips ``(5, 3)``."""
+TrainingImage: TypeAlias = (
+    tuple[ArrayLike, ArrayLike, ArrayLike] | tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike]
+)
+"""One training image: depth ``(H, W)`` metres, intrinsics ``(4,)``, fingertips ``(5, 3)``
+and optionally the hidden fingertips ``(K, 3)`` (see ``ignore_hidden_tips``)."""
 
 
 def collect_samples(
@@ -206,10 +243,11 @@ def collect_samples(
 
     Parameters
     ----------
-    images : iterable of (depth_m, intrinsics, tips_m)
+    images : iterable of (depth_m, intrinsics, tips_m[, hidden_tips_m])
         ``depth_m`` (H, W) float32 metres, 0 where missing; ``intrinsics`` (4,) float
         ``(fx, fy, cx, cy)`` pixels; ``tips_m`` (5, 3) float, camera frame, metres,
-        NaN for a fingertip that is not visible. Image sizes may differ.
+        NaN for a fingertip that is not visible; optionally ``hidden_tips_m`` (K, 3)
+        float, the positions of the hidden ones. Image sizes may differ.
     offsets_m : (F, 2, 2) float32
         Feature probe offsets (:func:`tracker.fingertips.features.random_offsets`).
     config : FingertipTrainingConfig
@@ -221,11 +259,14 @@ def collect_samples(
     offsets = as_array("offsets_m", offsets_m, (None, 2, 2), np.float32, kind="f", finite=True)
     rng = np.random.default_rng(config.seed)
     parts = []
-    for depth_m, intrinsics, tips_m in images:
+    for depth_m, intrinsics, tips_m, *hidden_tips_m in images:
         depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
         tips = as_array("tips_m", tips_m, (N_TIPS, 3), np.float64, kind="fiu")
         camera = intrinsics_array(intrinsics)
-        parts.append(sample_image(depth, camera, tips, offsets, config, rng))
+        hidden = None
+        if hidden_tips_m:
+            hidden = as_array("hidden_tips_m", hidden_tips_m[0], (None, 3), np.float64)
+        parts.append(sample_image(depth, camera, tips, offsets, config, rng, hidden))
     if not parts:
         raise ValueError("images: expected at least one training image")
     return TrainingSamples(
@@ -279,24 +320,41 @@ def sample_training_set(
     return collect_samples(images, offsets_m, config=config)
 
 
+def hough_targets(samples: TrainingSamples, offset_weight: float) -> NDArray[np.float32]:
+    """Regression targets ``(N, 4)`` of the Hough objective: label, weighted offset.
+
+    Non-fingertip pixels get a zero offset, so that only the offsets of fingertip
+    pixels shape the splits.
+    """
+    offset = np.where(samples.is_tip[:, None], samples.offset_m, np.float32(0.0))
+    label = samples.is_tip[:, None].astype(np.float32)
+    return np.concatenate([label, np.float32(offset_weight) * offset], axis=1).astype(np.float32)
+
+
 def fit_classifier(
     samples: TrainingSamples, *, config: FingertipTrainingConfig = FingertipTrainingConfig()
-) -> ExtraTreesClassifier | RandomForestClassifier:
-    """Fit the scikit-learn forest on the fingertip labels."""
+) -> SklearnForest:
+    """Fit the scikit-learn forest of ``config.forest_kind`` on the training samples."""
     kind = check_choice("forest_kind", config.forest_kind, FOREST_KINDS)
     if samples.is_tip.all() or not samples.is_tip.any():
         raise ValueError("samples: need both fingertip and non-fingertip pixels to train")
-    forest_class = ExtraTreesClassifier if kind == "extra_trees" else RandomForestClassifier
-    classifier = forest_class(
-        n_estimators=config.n_trees,
-        max_depth=config.max_depth,
-        min_samples_leaf=config.min_samples_leaf,
-        max_features=min(config.max_features, samples.features.shape[1]),
-        random_state=config.seed,
-        n_jobs=config.n_jobs,
-    )
-    classifier.fit(samples.features, samples.is_tip)
-    return classifier
+    settings = {
+        "n_estimators": config.n_trees,
+        "max_depth": config.max_depth,
+        "min_samples_leaf": config.min_samples_leaf,
+        "max_features": min(config.max_features, samples.features.shape[1]),
+        "random_state": config.seed,
+        "n_jobs": config.n_jobs,
+    }
+    forest: SklearnForest
+    if kind == "hough_extra_trees":
+        forest = ExtraTreesRegressor(**settings)
+        forest.fit(samples.features, hough_targets(samples, config.offset_weight))
+    else:
+        classes = {"extra_trees": ExtraTreesClassifier, "random_forest": RandomForestClassifier}
+        forest = classes[kind](**settings)
+        forest.fit(samples.features, samples.is_tip)
+    return forest
 
 
 def _threshold_float32(threshold: NDArray[np.float64]) -> NDArray[np.float32]:
@@ -307,9 +365,7 @@ def _threshold_float32(threshold: NDArray[np.float64]) -> NDArray[np.float32]:
     return rounded
 
 
-def leaf_offsets(
-    classifier: ExtraTreesClassifier | RandomForestClassifier, samples: TrainingSamples
-) -> list[NDArray[np.float32]]:
+def leaf_offsets(classifier: SklearnForest, samples: TrainingSamples) -> list[NDArray[np.float32]]:
     """Per tree, the mean offset ``(n_nodes, 3)`` of the positive pixels reaching each node.
 
     Nodes that no positive training pixel reaches get a zero offset.
@@ -334,8 +390,21 @@ def _json_number(value: object) -> object:
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
+def node_probability(classifier: SklearnForest, tree_index: int) -> NDArray[np.float64]:
+    """Fingertip probability ``(n_nodes,)`` of every node of one fitted tree.
+
+    The share of fingertip pixels among the training pixels reaching the node: the
+    class fraction of a classifier, the mean of the label target of a Hough forest.
+    """
+    value = classifier.estimators_[tree_index].tree_.value
+    if isinstance(classifier, ExtraTreesRegressor):
+        return np.asarray(value[:, 0, 0], dtype=np.float64)
+    counts = value[:, 0, :]
+    return np.asarray(counts[:, 1] / counts.sum(axis=1), dtype=np.float64)
+
+
 def export_forest(
-    classifier: ExtraTreesClassifier | RandomForestClassifier,
+    classifier: SklearnForest,
     samples: TrainingSamples,
     offsets_m: NDArray[np.float32],
     *,
@@ -349,10 +418,9 @@ def export_forest(
     }
     roots = []
     start = 0
-    for estimator in classifier.estimators_:
+    for t, estimator in enumerate(classifier.estimators_):
         tree = estimator.tree_
         split = tree.children_left >= 0
-        value = tree.value[:, 0, :]
         roots.append(start)
         columns["feature"].append(np.where(split, tree.feature, -1))
         columns["threshold"].append(
@@ -360,7 +428,7 @@ def export_forest(
         )
         columns["left"].append(np.where(split, tree.children_left + start, -1))
         columns["right"].append(np.where(split, tree.children_right + start, -1))
-        columns["probability"].append(value[:, 1] / value.sum(axis=1))
+        columns["probability"].append(node_probability(classifier, t))
         start += tree.node_count
     settings = {
         **{k: _json_number(v) for k, v in asdict(config).items()},
@@ -517,6 +585,12 @@ def load_recipe(path: str | os.PathLike[str], **data_overrides: Any) -> Fingerti
     return FingertipRecipe(data, training, detector)
 
 
+def _hidden_tips(example: FingertipExample) -> NDArray[np.float64]:
+    """Positions ``(K, 3)`` of the fingertips of ``example`` that are not visible."""
+    tips = example.keypoints_m[list(FINGERTIP_KEYPOINTS)]
+    return tips[np.isnan(example.tips_m).any(axis=1)]
+
+
 def train_from_recipe(recipe: FingertipRecipe, *, progress: bool = False) -> FingertipForest:
     """Render the recipe's training images and train the forest on them.
 
@@ -537,7 +611,7 @@ def train_from_recipe(recipe: FingertipRecipe, *, progress: bool = False) -> Fin
 
     examples = generate_examples(recipe.data)
     images = (
-        (example.depth_m, example.intrinsics, example.tips_m)
+        (example.depth_m, example.intrinsics, example.tips_m, _hidden_tips(example))
         for example in tqdm(
             examples, total=recipe.data.n_images, desc="render", unit="img", disable=not progress
         )

@@ -11,9 +11,11 @@ from builder.fingertip_data import (
     FingertipDataConfig,
     FingertipExample,
     Scene,
+    forearm_depth,
     generate_examples,
     load_data_config,
     mirror_example,
+    sample_scene,
     visible_tips,
     write_annotated_folder,
 )
@@ -55,6 +57,34 @@ def test_mirroring_maps_points_to_mirrored_pixels() -> None:
     np.testing.assert_allclose(uv_mirrored[:, 1], uv[:, 1])
 
 
+def test_forearm_depth_known_values() -> None:
+    # Forearm axis along the camera's -y from a wrist 0.5 m in front of the camera,
+    # hand length 0.19 m: half width 0.0323 m (x), half thickness 0.0228 m (z).
+    camera = np.array([100.0, 100.0, 50.0, 40.0])
+    depth = forearm_depth((80, 100), camera, np.eye(3), np.array([0.0, 0.0, 0.5]), 0.19)
+    assert depth.dtype == np.float32 and depth.shape == (80, 100)
+    # Rays with x = 0 meet the front of the elliptic section at z = 0.5 - 0.0228.
+    np.testing.assert_allclose(depth[:40, 50], 0.5 - 0.12 * 0.19, atol=1e-6)
+    assert np.all(depth[41:, :] == 0)  # below the wrist: no forearm
+    assert depth[20, 50 - 5] > depth[20, 50] and depth[20, 50 + 5] > depth[20, 50]
+    assert depth[20, 50 - 8] == 0 and depth[20, 50 + 8] == 0  # 8 px = 0.04 m > half width
+
+
+def test_forearm_is_drawn_as_configured() -> None:
+    named = [np.zeros(20)]
+    rng = np.random.default_rng(4)
+    without = [sample_scene(CLEAN, named, rng) for _ in range(5)]
+    assert all(scene.forearm_rotation is None for scene in without)
+    config = replace(CLEAN, forearm_probability=1.0, wrist_flex_max_deg=30.0)
+    for _ in range(5):
+        rotation = sample_scene(config, named, rng).forearm_rotation
+        assert rotation is not None
+        np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
+        # The forearm direction -y stays within the flexion and deviation bounds.
+        angle = np.degrees(np.arccos(rotation[1, 1]))
+        assert angle <= np.hypot(30.0, config.wrist_deviation_max_deg) + 1e-9
+
+
 def test_config_checks_and_toml(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="noise"):
         FingertipDataConfig(noise=("kinect_v7",))
@@ -77,6 +107,7 @@ def _toy_example(frame: int) -> FingertipExample:
     scene = Scene(
         np.zeros(20), np.eye(3), np.array([0, 0, 0.4]), 0.19, None, None, False, "none", False
     )
+    assert scene.forearm_rotation is None
     return FingertipExample(depth, INTRINSICS, tips, keypoints, scene)
 
 
@@ -112,6 +143,19 @@ def test_rendered_tips_are_nan_exactly_when_hidden(renderer) -> None:
             n_visible += seen
             n_hidden += not seen
     assert n_visible > 0
+
+
+@pytest.mark.gl
+def test_forearm_adds_depth_behind_the_hand_only(renderer) -> None:
+    config = replace(CLEAN, n_images=1, plane_probability=0.0, half_resolution_fraction=0.0)
+    bare = list(generate_examples(config, renderer))
+    armed = list(generate_examples(replace(config, forearm_probability=1.0), renderer))
+    for a, b in zip(bare, armed, strict=True):
+        assert a.scene.forearm_rotation is None and b.scene.forearm_rotation is not None
+        np.testing.assert_array_equal(a.scene.rotation, b.scene.rotation)
+        seen = a.depth_m > 0
+        assert np.all(b.depth_m[seen] <= a.depth_m[seen])  # the arm may hide, never remove
+        assert np.count_nonzero(b.depth_m) > np.count_nonzero(a.depth_m)
 
 
 @pytest.mark.gl

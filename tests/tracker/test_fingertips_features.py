@@ -61,16 +61,22 @@ def test_features_invariant_to_moving_the_scene_back() -> None:
     assert not np.all(on_object), "some probes must read the background"
 
 
-def test_probes_off_the_image_or_on_missing_depth_read_background() -> None:
+def test_probes_on_missing_depth_read_background_off_the_image_the_border() -> None:
     depth = np.full((10, 10), 0.5, np.float32)
     depth[5, 8] = 0.0
-    offsets = np.zeros((3, 2, 2), np.float32)
-    offsets[0, 0] = (0.0, -0.05)  # 10 px up, off the image
+    depth[0, 6] = 0.7  # top border pixel above the reference pixel
+    depth[9, 6] = 0.0  # bottom border pixel below it: missing
+    offsets = np.zeros((5, 2, 2), np.float32)
+    offsets[0, 0] = (0.0, -0.05)  # 10 px up, off the image: reads the top border pixel
     offsets[1, 0] = (0.0075, 0.0)  # 1.5 px right: rounds to 2, the missing pixel
     offsets[2, 0] = (0.005, 0.0)  # 1 px right, on the plane
+    offsets[3, 0] = (0.0, 0.05)  # 10 px down, off the image, border pixel missing
+    offsets[4, 0] = (-0.05, -0.05)  # off the image at the top-left corner
     features = pixel_features(depth, [[6, 5]], offsets, (100.0, 100.0, 5.0, 5.0))
     np.testing.assert_allclose(
-        features[0], [BACKGROUND_DEPTH_M - 0.5, BACKGROUND_DEPTH_M - 0.5, 0.0], atol=1e-6
+        features[0],
+        [0.7 - 0.5, BACKGROUND_DEPTH_M - 0.5, 0.0, BACKGROUND_DEPTH_M - 0.5, 0.0],
+        atol=1e-6,
     )
 
 

@@ -60,6 +60,43 @@ def test_npz_forest_equals_scikit_learn(kind: ForestKind, tmp_path: Path) -> Non
     assert loaded.version == forest.version != ""
 
 
+def test_hough_forest_exports_regressor_and_gathers_offsets(tmp_path: Path) -> None:
+    rng = np.random.default_rng(8)
+    train = _samples(rng, 4000, 12)
+    # Each fingertip's offset points one of two ways, told apart by feature 5 alone.
+    direction = np.where(train.features[:, 5] > 0, 0.015, -0.015).astype(np.float32)
+    train = TrainingSamples(
+        train.features, train.is_tip, np.stack([direction, 0 * direction, 0 * direction], 1)
+    )
+    settings = {"n_trees": 3, "max_depth": 8, "min_samples_leaf": 5, "max_features": 12}
+    hough = FingertipTrainingConfig(forest_kind="hough_extra_trees", **settings)
+    regressor = fit_classifier(train, config=hough)
+    forest = export_forest(regressor, train, random_offsets(12, max_offset_m=0.05), config=hough)
+    save_forest(forest, tmp_path / "hough.npz")
+    loaded = load_forest(tmp_path / "hough.npz")
+    test = _samples(rng, 1000, 12)
+    prediction = predict_leaves(loaded, apply_features(loaded, test.features))
+    np.testing.assert_allclose(
+        prediction.probability, regressor.predict(test.features)[:, 0], atol=1e-6
+    )
+
+    def offset_error(config: FingertipTrainingConfig) -> float:
+        model = export_forest(
+            fit_classifier(train, config=config),
+            train,
+            random_offsets(12, max_offset_m=0.05),
+            config=config,
+        )
+        tips = train.is_tip
+        predicted = predict_leaves(model, apply_features(model, train.features[tips]))
+        return float(np.abs(predicted.offset_m[:, 0] - direction[tips]).mean())
+
+    # Splits on the offsets make the leaves agree on the direction; label-only splits
+    # mix the two directions.
+    classification = FingertipTrainingConfig(forest_kind="extra_trees", **settings)
+    assert offset_error(hough) < 0.5 * offset_error(classification)
+
+
 def test_leaf_offsets_are_means_of_positive_training_offsets() -> None:
     rng = np.random.default_rng(6)
     config = FingertipTrainingConfig(n_trees=2, max_depth=6, max_features=4)

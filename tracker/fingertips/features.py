@@ -8,8 +8,11 @@ Shotton et al. give the offsets ``a`` and ``b`` in pixel·metres. Here they are 
 offsets in metres (as if measured in the plane through the reference point parallel
 to the image) and become pixels through the focal length: ``a_px = a_m * f / d(x)``.
 That is Shotton's feature with ``a = a_m * f`` and keeps a trained forest valid for
-any camera resolution. A probe outside the image or on a missing measurement reads
-:data:`BACKGROUND_DEPTH_M`, so silhouettes give large, stable feature values.
+any camera resolution. A probe on a missing measurement reads
+:data:`BACKGROUND_DEPTH_M`, so silhouettes give large, stable feature values. A probe
+outside the image reads the nearest pixel of the image border: the scene goes on
+beyond the image, so an arm or a body cut by the border does not look like a small
+isolated object (a fingertip) there.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from glovedb._validate import as_array
 
 BACKGROUND_DEPTH_M = 10.0
-"""Depth read by a probe that falls outside the image or on a missing measurement."""
+"""Depth read by a probe that falls on a missing measurement."""
 
 
 def intrinsics_array(intrinsics: ArrayLike) -> NDArray[np.float64]:
@@ -191,10 +194,10 @@ def foreground_pixels(depth_m: ArrayLike, *, stride: int = 1) -> NDArray[np.int3
 
 
 def probe_image(depth_m: NDArray[np.float32]) -> NDArray[np.float32]:
-    """Depth with missing values set to :data:`BACKGROUND_DEPTH_M` and a 1-pixel border of it.
+    """Depth with missing values set to :data:`BACKGROUND_DEPTH_M` and a 1-pixel edge copy.
 
-    Reading it at clipped coordinates gives the background for every probe outside
-    the image without further tests.
+    Reading it at clipped coordinates gives every probe outside the image the value
+    of the nearest border pixel without further tests.
 
     Parameters
     ----------
@@ -206,7 +209,7 @@ def probe_image(depth_m: NDArray[np.float32]) -> NDArray[np.float32]:
     (H + 2, W + 2) float32
     """
     filled = np.where(depth_m > 0, depth_m, np.float32(BACKGROUND_DEPTH_M)).astype(np.float32)
-    return np.pad(filled, 1, constant_values=BACKGROUND_DEPTH_M)
+    return np.pad(filled, 1, mode="edge")
 
 
 def read_probes(padded: NDArray[np.float32], u: NDArray, v: NDArray) -> NDArray[np.float32]:

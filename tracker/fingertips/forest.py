@@ -21,7 +21,8 @@ key                     shape, dtype        meaning
 ``node_left``           (n,) int32          left child (global node index), -1 at a leaf
 ``node_right``          (n,) int32          right child (global node index), -1 at a leaf
 ``node_probability``    (n,) float32        fingertip probability of the training pixels
-                                            reaching the node
+                                            reaching the node (their share of fingertip
+                                            pixels, for classification and Hough forests)
 ``node_offset_m``       (n, 3) float32      mean 3D offset (camera axes, metres) from the
                                             pixel to its nearest fingertip, over the
                                             positive training pixels reaching the node
