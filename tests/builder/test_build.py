@@ -76,7 +76,11 @@ def test_workers_do_not_change_the_result(small_database, tmp_path):
 
 
 def test_resume_after_a_killed_build_equals_an_uninterrupted_build(tmp_path):
-    config = dict(SMALL, postures={"named": ["open", "fist", "pinch", "power", "ok", "point"]})
+    # Enough postures that the build is still running when the test sees two shards:
+    # a posture of this small database renders in milliseconds.
+    random = {"count": 60, "seed": 7, "synergies": 3, "spread": 1.0, "noise_deg": 5.0}
+    named = ["open", "fist", "pinch", "power", "ok", "point"]
+    config = dict(SMALL, postures={"named": named, "random": random})
     config_file = tmp_path / "six.toml"
     config_file.write_text(_toml(config))
     out = tmp_path / "six.h5"
@@ -90,14 +94,14 @@ def test_resume_after_a_killed_build_equals_an_uninterrupted_build(tmp_path):
     os.kill(process.pid, signal.SIGKILL)
     process.wait()
     assert not out.exists(), "an interrupted build must not leave a database behind"
-    assert 2 <= len(list(parts.glob("posture_*.npy"))) < 6
+    assert 2 <= len(list(parts.glob("posture_*.npy"))) < 66
 
     again = subprocess.run(command, capture_output=True, text=True)
     assert again.returncode == 2 and "--resume" in again.stderr
     resumed = subprocess.run(command + ["--resume", "--json"], capture_output=True, text=True)
     assert resumed.returncode == 0, resumed.stderr
     figures = json.loads(resumed.stdout)
-    assert figures["entries"] == 216 and figures["rendered_postures"] < 6
+    assert figures["entries"] == 66 * 36 and figures["rendered_postures"] < 66
     assert not parts.exists()
 
     uninterrupted = tmp_path / "straight.h5"
@@ -217,6 +221,11 @@ def _toml(config: dict) -> str:
     lines = [f'name = "{config["name"]}"']
     for table in ("postures", "views", "images"):
         lines.append(f"[{table}]")
+        subtables = {key: value for key, value in config[table].items() if isinstance(value, dict)}
         for key, value in config[table].items():
-            lines.append(f"{key} = {json.dumps(value)}")
+            if key not in subtables:
+                lines.append(f"{key} = {json.dumps(value)}")
+        for name, subtable in subtables.items():
+            lines.append(f"[{table}.{name}]")
+            lines += [f"{key} = {json.dumps(value)}" for key, value in subtable.items()]
     return "\n".join(lines) + "\n"
