@@ -220,8 +220,6 @@ class Tracker(Closing):
         color_table: ColorTable | None = None,
     ) -> None:
         self.settings = settings or TrackerSettings()
-        # One BLAS thread while this tracker lives: see glovedb._threads.
-        self._blas_limit = single_threaded_blas()
         self.index = DatabaseIndex(database)
         hand_length = self.index.hand_length_m
         pattern = load_pattern()
@@ -240,6 +238,9 @@ class Tracker(Closing):
         )  # every stage keeps at least as many as the widened last one
         parse_cascade(self._search_cascade, sizes=self._sizes)
         self._previous_posture: NDArray[np.float64] | None = None
+        # One BLAS thread while this tracker lives (see glovedb._threads); set last,
+        # so that a tracker that fails to open leaves the process as it was.
+        self._blas_limit = single_threaded_blas()
         self._warm_up()
 
     def _warm_up(self) -> None:
