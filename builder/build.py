@@ -12,7 +12,7 @@ How a build stays safe when it is interrupted:
 
 Workers are separate processes started with ``spawn`` (never ``fork``: the calling
 process may hold an OpenGL context, which must not cross a fork), each with its own
-renderer, a software rasteriser (``builder.rasterize``) that needs no context; with
+renderer, a software rasteriser (``glovedb.rasterize``) that needs no context; with
 ``executor="ray"`` they are Ray actors on a cluster (``builder.ray_executor``). Shards
 are assembled in posture order, so the output depends neither on the number of workers
 nor on the executor, and two builds of one config give the same bytes.
@@ -46,7 +46,6 @@ import glovedb.mesh
 import glovedb.shape
 import glovedb.surface_nets
 from builder.config import DatabaseConfig
-from builder.rasterize import rasterize_labels
 from builder.sampling import farthest_point_selection, synergy_postures
 from glovedb._threads import single_threaded_blas
 from glovedb.camera import CameraIntrinsics
@@ -55,6 +54,7 @@ from glovedb.hand_model import forward_kinematics, make_skeleton
 from glovedb.mesh import HandMesh, make_hand_mesh, pose_mesh
 from glovedb.posture_io import load_postures
 from glovedb.postures import load_named_postures
+from glovedb.rasterize import rasterize_labels
 from glovedb.resources import config_path
 from glovedb.tiny_images import tiny_images_of_label_images
 from glovedb.trajectory import load_trajectory
@@ -258,7 +258,7 @@ def cached_hand_mesh(hand_length_m: float, spacing_m: float) -> HandMesh:
 class PostureRenderer:
     """Renders the tiny images of every view of any posture of a plan.
 
-    Labels come from the software rasteriser (:mod:`builder.rasterize`): no OpenGL
+    Labels come from the software rasteriser (:mod:`glovedb.rasterize`): no OpenGL
     context, so a renderer is cheap to make in any process.
 
     Parameters

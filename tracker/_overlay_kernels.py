@@ -37,38 +37,3 @@ def fill_triangles(triangles: NDArray[np.float64], mask: NDArray[np.bool_]) -> N
                 w2 = ((ax - cx) * (v - cy) - (ay - cy) * (u - cx)) * sign
                 if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
                     mask[v, u] = True
-
-
-@numba.njit(cache=True, nogil=True)
-def rasterize_labels(
-    triangles: NDArray[np.float64],
-    depths: NDArray[np.float64],
-    labels: NDArray[np.uint8],
-    out_labels: NDArray[np.uint8],
-    out_depth: NDArray[np.float32],
-) -> None:
-    """Z-buffered label image of ``(F, 3, 2)`` pixel triangles with corner ``depths``
-    ``(F, 3)`` and classes ``labels (F,)``; ``out_depth`` starts at +inf."""
-    height, width = out_labels.shape
-    for f in range(triangles.shape[0]):
-        ax, ay = triangles[f, 0, 0], triangles[f, 0, 1]
-        bx, by = triangles[f, 1, 0], triangles[f, 1, 1]
-        cx, cy = triangles[f, 2, 0], triangles[f, 2, 1]
-        area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-        if area == 0.0:
-            continue
-        u0 = max(math.ceil(min(ax, bx, cx)), 0)
-        u1 = min(math.floor(max(ax, bx, cx)), width - 1)
-        v0 = max(math.ceil(min(ay, by, cy)), 0)
-        v1 = min(math.floor(max(ay, by, cy)), height - 1)
-        for v in range(v0, v1 + 1):
-            for u in range(u0, u1 + 1):
-                w0 = ((cx - bx) * (v - by) - (cy - by) * (u - bx)) / area
-                w1 = ((ax - cx) * (v - cy) - (ay - cy) * (u - cx)) / area
-                w2 = 1.0 - w0 - w1
-                if w0 < 0.0 or w1 < 0.0 or w2 < 0.0:
-                    continue
-                z = w0 * depths[f, 0] + w1 * depths[f, 1] + w2 * depths[f, 2]
-                if z < out_depth[v, u]:
-                    out_depth[v, u] = z
-                    out_labels[v, u] = labels[f]

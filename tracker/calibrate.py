@@ -24,7 +24,7 @@ from glovedb._validate import as_array
 from glovedb.camera import CameraIntrinsics
 from glovedb.mesh import HandMesh, pose_mesh
 from glovedb.pattern import LabeledVertices
-from tracker import _overlay_kernels
+from glovedb.rasterize import rasterize_labels_and_depth
 from tracker.classify import ColorTable, calibrated_table
 from tracker.frames import Frame
 from tracker.pipeline import Tracker, TrackingResult
@@ -49,19 +49,11 @@ def model_label_image(
     """
     R = as_array("rotation", rotation, (3, 3), np.float64, finite=True)
     t = as_array("translation_m", translation_m, (3,), np.float64, finite=True)
-    vertices = pose_mesh(mesh, posture_rad)[split.source_vertex] @ R.T + t
-    if np.any(vertices[:, 2] <= 0.01):
-        raise ValueError("the model reaches behind the camera")
-    pixels = intrinsics.project(vertices)
-    faces = split.faces
-    triangles = np.ascontiguousarray(pixels[faces])
-    depths = np.ascontiguousarray(vertices[faces][..., 2])
-    face_labels = np.ascontiguousarray(split.labels[faces[:, 0]])
-    labels = np.zeros((intrinsics.height, intrinsics.width), np.uint8)
-    depth = np.full((intrinsics.height, intrinsics.width), np.inf, np.float32)
-    _overlay_kernels.rasterize_labels(triangles, depths, face_labels, labels, depth)
-    depth[~np.isfinite(depth)] = 0.0
-    return labels, depth
+    vertices = pose_mesh(mesh, posture_rad)[split.source_vertex]
+    labels, depth = rasterize_labels_and_depth(
+        vertices, split.faces, split.labels[split.faces[:, 0]], R[None], t[None], intrinsics
+    )
+    return labels[0], depth[0]
 
 
 def calibration_samples(

@@ -3,7 +3,9 @@
 Database builds need only labels, and the triangles of the label mesh are about a
 pixel large at the render size: for such images a rasteriser specialised to them is
 several times faster than OpenGL (pyrender on Mesa's llvmpipe pays per-view scene
-set-up and per-triangle overhead), needs no OpenGL context and starts at once.
+set-up and per-triangle overhead), needs no OpenGL context and starts at once. The
+tracker's colour calibration uses it too, with the depth of the visible surface
+(:func:`rasterize_labels_and_depth`).
 
 It follows OpenGL's rules, so its images equal :class:`builder.render.GloveRenderer`'s
 labels but for the rare pixel centre that lies on an edge to 1/256 pixel (tested):
@@ -24,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from builder import _raster_kernels
+from glovedb import _raster_kernels
 from glovedb._validate import as_array
 from glovedb.camera import CameraIntrinsics
 
@@ -67,6 +69,41 @@ def rasterize_labels(
         For bad shapes, faces that index no vertex, or a vertex nearer to a camera
         than :data:`MIN_DEPTH_M` (or behind it).
     """
+    args = (vertices_m, faces, face_labels, rotations, translations_m, camera)
+    return _rasterize(*args, with_depth=False)[0]
+
+
+def rasterize_labels_and_depth(
+    vertices_m: ArrayLike,
+    faces: ArrayLike,
+    face_labels: ArrayLike,
+    rotations: ArrayLike,
+    translations_m: ArrayLike,
+    camera: CameraIntrinsics,
+) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    """:func:`rasterize_labels` and the depth of the triangle seen at every pixel.
+
+    Returns
+    -------
+    labels : (V, H, W) uint8
+    depth_m : (V, H, W) float32
+        Camera-frame z of the nearest triangle at each pixel centre, 0 for background.
+    """
+    args = (vertices_m, faces, face_labels, rotations, translations_m, camera)
+    return _rasterize(*args, with_depth=True)
+
+
+def _rasterize(
+    vertices_m: ArrayLike,
+    faces: ArrayLike,
+    face_labels: ArrayLike,
+    rotations: ArrayLike,
+    translations_m: ArrayLike,
+    camera: CameraIntrinsics,
+    *,
+    with_depth: bool,
+) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    """Checks the inputs of both public functions and runs the kernel."""
     vertices = as_array("vertices_m", vertices_m, (None, 3), np.float64, finite=True)
     triangles = as_array("faces", faces, (None, 3), np.int32, kind="iu")
     labels = as_array("face_labels", face_labels, (len(triangles),), np.uint8, kind="iu")
@@ -76,7 +113,9 @@ def rasterize_labels(
     )
     if len(triangles) and (triangles.min() < 0 or triangles.max() >= len(vertices)):
         raise ValueError(f"faces: indices must lie in 0..{len(vertices) - 1}")
-    images = np.empty((len(view_rotations), camera.height, camera.width), np.uint8)
+    shape = (len(view_rotations), camera.height, camera.width)
+    images = np.empty(shape, np.uint8)
+    depth = np.empty(shape if with_depth else (1, 1, 1), np.float32)
     valid = _raster_kernels.rasterize_labels(
         np.ascontiguousarray(vertices),
         np.ascontiguousarray(triangles),
@@ -89,7 +128,9 @@ def rasterize_labels(
         camera.cy,
         MIN_DEPTH_M,
         images,
+        depth,
+        with_depth,
     )
     if not valid:
         raise ValueError(f"a vertex lies nearer to a camera than {MIN_DEPTH_M} m")
-    return images
+    return images, depth

@@ -1,4 +1,4 @@
-"""Compiled loops of :mod:`builder.rasterize`, which documents and checks the inputs."""
+"""Compiled loops of :mod:`glovedb.rasterize`, which documents and checks the inputs."""
 
 from __future__ import annotations
 
@@ -26,12 +26,16 @@ def rasterize_labels(
     cy: float,
     min_depth: float,
     out: NDArray[np.uint8],
+    depth_out: NDArray[np.float32],
+    with_depth: bool,
 ) -> bool:
     """Label of the nearest front-facing triangle at every pixel centre, per view.
 
-    Writes ``out[view]`` (``(V, H, W)``, 0 where no triangle covers the centre) and
-    returns False when a vertex of some view lies nearer than ``min_depth`` (the
-    views are then not valid). Faces are counter-clockwise seen from outside.
+    Writes ``out[view]`` (``(V, H, W)``, 0 where no triangle covers the centre) and,
+    if ``with_depth``, that triangle's depth to ``depth_out[view]`` (0 where none;
+    otherwise ``depth_out`` is not touched). Returns False when a vertex of some view
+    lies nearer than ``min_depth`` (the views are then not valid). Faces are
+    counter-clockwise seen from outside.
     """
     n_views, height, width = out.shape
     n_vertices = vertices.shape[0]
@@ -58,11 +62,16 @@ def rasterize_labels(
         image = out[view]
         image[:] = 0
         nearest[:] = 0.0
+        depth = depth_out[view] if with_depth else depth_out[0]
+        if with_depth:
+            depth[:] = 0.0
         for f in range(faces.shape[0]):
             # Counter-clockwise from outside is clockwise in y-down pixels: swapping
             # two corners makes the front faces' area positive.
             a, b, c = faces[f, 0], faces[f, 2], faces[f, 1]
-            _fill_triangle(a, b, c, px, py, inverse_z, face_labels[f], image, nearest)
+            _fill_triangle(
+                a, b, c, px, py, inverse_z, face_labels[f], image, nearest, depth, with_depth
+            )
     return valid
 
 
@@ -77,6 +86,8 @@ def _fill_triangle(
     label: np.uint8,
     image: NDArray[np.uint8],
     nearest: NDArray[np.float64],
+    depth: NDArray[np.float32],
+    with_depth: bool,
 ) -> None:
     """Depth-tested fill of one triangle whose area is positive when it faces us."""
     ax, ay, bx, by, cx, cy = px[a], py[a], px[b], py[b], px[c], py[c]
@@ -122,6 +133,8 @@ def _fill_triangle(
                 if inverse_depth > nearest[row, col]:
                     nearest[row, col] = inverse_depth
                     image[row, col] = label
+                    if with_depth:
+                        depth[row, col] = 1.0 / inverse_depth
             w_a += step_a
             w_b += step_b
             w_c += step_c

@@ -4,11 +4,11 @@ with the OpenGL renderer."""
 import numpy as np
 import pytest
 
-from builder.rasterize import rasterize_labels
 from glovedb.camera import CameraIntrinsics
 from glovedb.mesh import pose_mesh
 from glovedb.pattern import face_labels
 from glovedb.postures import named_posture
+from glovedb.rasterize import rasterize_labels, rasterize_labels_and_depth
 from glovedb.views import named_view
 
 CAMERA = CameraIntrinsics(64, 48, 50.0, 60.0, 31.5, 23.5)
@@ -28,6 +28,20 @@ def square(u_edges, v_edges, depth_m, camera=CAMERA, facing=True):
 
 def render(vertices, faces, labels, camera=CAMERA):
     return rasterize_labels(vertices, faces, labels, np.eye(3)[None], np.zeros((1, 3)), camera)[0]
+
+
+def test_depth_is_the_nearest_surface_and_zero_elsewhere():
+    near, near_faces = square([10.3, 40.7], [5.6, 30.2], 0.5)
+    far, far_faces = square([20.0, 50.0], [10.0, 40.0], 0.8)
+    vertices, faces = np.vstack([near, far]), np.vstack([near_faces, far_faces + 4])
+    labels, depth = rasterize_labels_and_depth(
+        vertices, faces, [5, 5, 9, 9], np.eye(3)[None], np.zeros((1, 3)), CAMERA
+    )
+    assert depth.shape == labels.shape == (1, 48, 64) and depth.dtype == np.float32
+    np.testing.assert_array_equal(labels[0], render(vertices, faces, [5, 5, 9, 9]))
+    np.testing.assert_allclose(depth[0][labels[0] == 5], 0.5, rtol=1e-6)
+    np.testing.assert_allclose(depth[0][labels[0] == 9], 0.8, rtol=1e-6)
+    assert not depth[0][labels[0] == 0].any()
 
 
 def test_covers_exactly_the_pixel_centres_inside():
