@@ -35,6 +35,12 @@ from numpy.typing import ArrayLike, NDArray
 from sklearn.ensemble import ExtraTreesClassifier, ExtraTreesRegressor, RandomForestClassifier
 
 from builder.fingertip_data import FingertipDataConfig, FingertipExample, data_config_from_dict
+from builder.fingertip_verifier import (
+    VerifierTrainingConfig,
+    train_verifier,
+    verifier_config_from_dict,
+)
+from builder.tree_export import SklearnForest, pack_tree_table
 from glovedb import __version__
 from glovedb._validate import as_array, check_choice, dataclass_from_table
 from glovedb.hand_model import FINGERTIP_KEYPOINTS
@@ -52,9 +58,6 @@ from tracker.fingertips.forest import FingertipForest
 
 ForestKind = Literal["extra_trees", "random_forest", "hough_extra_trees"]
 FOREST_KINDS: tuple[ForestKind, ...] = ("extra_trees", "random_forest", "hough_extra_trees")
-
-SklearnForest: TypeAlias = ExtraTreesClassifier | RandomForestClassifier | ExtraTreesRegressor
-"""The scikit-learn forests :func:`fit_classifier` may return."""
 
 N_TIPS = 5
 
@@ -357,14 +360,6 @@ def fit_classifier(
     return forest
 
 
-def _threshold_float32(threshold: NDArray[np.float64]) -> NDArray[np.float32]:
-    """Largest float32 not above each threshold: ``x <= t`` is unchanged for float32 ``x``."""
-    rounded = threshold.astype(np.float32)
-    above = rounded.astype(np.float64) > threshold
-    rounded[above] = np.nextafter(rounded[above], np.float32(-np.inf))
-    return rounded
-
-
 def leaf_offsets(classifier: SklearnForest, samples: TrainingSamples) -> list[NDArray[np.float32]]:
     """Per tree, the mean offset ``(n_nodes, 3)`` of the positive pixels reaching each node.
 
@@ -390,19 +385,6 @@ def _json_number(value: object) -> object:
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
-def node_probability(classifier: SklearnForest, tree_index: int) -> NDArray[np.float64]:
-    """Fingertip probability ``(n_nodes,)`` of every node of one fitted tree.
-
-    The share of fingertip pixels among the training pixels reaching the node: the
-    class fraction of a classifier, the mean of the label target of a Hough forest.
-    """
-    value = classifier.estimators_[tree_index].tree_.value
-    if isinstance(classifier, ExtraTreesRegressor):
-        return np.asarray(value[:, 0, 0], dtype=np.float64)
-    counts = value[:, 0, :]
-    return np.asarray(counts[:, 1] / counts.sum(axis=1), dtype=np.float64)
-
-
 def export_forest(
     classifier: SklearnForest,
     samples: TrainingSamples,
@@ -412,24 +394,6 @@ def export_forest(
     extra_settings: dict[str, object] | None = None,
 ) -> FingertipForest:
     """Pack a fitted scikit-learn forest and its leaf offsets into plain arrays."""
-    per_tree_offsets = leaf_offsets(classifier, samples)
-    columns: dict[str, list[NDArray]] = {
-        k: [] for k in ("feature", "threshold", "left", "right", "probability")
-    }
-    roots = []
-    start = 0
-    for t, estimator in enumerate(classifier.estimators_):
-        tree = estimator.tree_
-        split = tree.children_left >= 0
-        roots.append(start)
-        columns["feature"].append(np.where(split, tree.feature, -1))
-        columns["threshold"].append(
-            np.where(split, _threshold_float32(tree.threshold), np.float32(0.0))
-        )
-        columns["left"].append(np.where(split, tree.children_left + start, -1))
-        columns["right"].append(np.where(split, tree.children_right + start, -1))
-        columns["probability"].append(node_probability(classifier, t))
-        start += tree.node_count
     settings = {
         **{k: _json_number(v) for k, v in asdict(config).items()},
         "sklearn_version": sklearn.__version__,
@@ -440,15 +404,10 @@ def export_forest(
     return FingertipForest(
         offsets_m=offsets_m.astype(np.float32),
         depth_range_m=(float(config.depth_range_m[0]), float(config.depth_range_m[1])),
-        tree_roots=np.asarray(roots, dtype=np.int32),
-        node_feature=np.concatenate(columns["feature"]).astype(np.int32),
-        node_threshold=np.concatenate(columns["threshold"]).astype(np.float32),
-        node_left=np.concatenate(columns["left"]).astype(np.int32),
-        node_right=np.concatenate(columns["right"]).astype(np.int32),
-        node_probability=np.concatenate(columns["probability"]).astype(np.float32),
-        node_offset_m=np.concatenate(per_tree_offsets).astype(np.float32),
+        node_offset_m=np.concatenate(leaf_offsets(classifier, samples)).astype(np.float32),
         settings_json=json.dumps(settings, sort_keys=True),
         version=__version__,
+        **pack_tree_table(classifier),
     )
 
 
@@ -544,15 +503,21 @@ class FingertipRecipe:
     detector : DetectorConfig
         Detection settings recorded in the model; its ``depth_band_m`` is the
         training one.
+    verifier : VerifierTrainingConfig or None
+        How the peak verifier is trained (:mod:`builder.fingertip_verifier`); None:
+        no verifier.
     """
 
     data: FingertipDataConfig
     training: FingertipTrainingConfig
     detector: DetectorConfig
+    verifier: VerifierTrainingConfig | None = None
 
 
 def load_recipe(path: str | os.PathLike[str], **data_overrides: Any) -> FingertipRecipe:
-    """Read a ``configs/fingertips/*.toml`` file (tables ``data``, ``training``, ``detector``).
+    """Read a ``configs/fingertips/*.toml`` file.
+
+    Tables: ``data``, ``training``, ``detector`` and the optional ``verifier``.
 
     Parameters
     ----------
@@ -571,7 +536,7 @@ def load_recipe(path: str | os.PathLike[str], **data_overrides: Any) -> Fingerti
             content = tomllib.load(stream)
     except (OSError, tomllib.TOMLDecodeError) as error:
         raise ValueError(f"{os.fspath(path)}: cannot read config ({error})") from error
-    unknown = set(content) - {"data", "training", "detector"}
+    unknown = set(content) - {"data", "training", "detector", "verifier"}
     if unknown:
         raise ValueError(f"{os.fspath(path)}: unknown tables {', '.join(sorted(unknown))}")
     data = replace(data_config_from_dict(content.get("data", {})), **data_overrides)
@@ -582,7 +547,8 @@ def load_recipe(path: str | os.PathLike[str], **data_overrides: Any) -> Fingerti
     detector = detector_config_from_dict(
         {**detector_table, "depth_band_m": _json_number(training.depth_band_m)}
     )
-    return FingertipRecipe(data, training, detector)
+    verifier = verifier_config_from_dict(content["verifier"]) if "verifier" in content else None
+    return FingertipRecipe(data, training, detector, verifier)
 
 
 def _hidden_tips(example: FingertipExample) -> NDArray[np.float64]:
@@ -591,33 +557,54 @@ def _hidden_tips(example: FingertipExample) -> NDArray[np.float64]:
     return tips[np.isnan(example.tips_m).any(axis=1)]
 
 
-def train_from_recipe(recipe: FingertipRecipe, *, progress: bool = False) -> FingertipForest:
-    """Render the recipe's training images and train the forest on them.
+def train_from_recipe(
+    recipe: FingertipRecipe, *, progress: bool = False, forest: FingertipForest | None = None
+) -> FingertipForest:
+    """Render the recipe's training images and train the forest (and verifier) on them.
 
     Parameters
     ----------
     recipe : FingertipRecipe
     progress : bool
         Show a progress bar (on a terminal).
+    forest : FingertipForest, optional
+        Keep this trained forest and only train the recipe's verifier for it (the
+        recipe's detector settings replace the recorded ones).
 
     Returns
     -------
     FingertipForest
-        With the data, detector and training settings recorded.
+        With the data, detector, training and verifier settings recorded.
     """
     from tqdm import tqdm
 
     from builder.fingertip_data import generate_examples
 
-    examples = generate_examples(recipe.data)
-    images = (
-        (example.depth_m, example.intrinsics, example.tips_m, _hidden_tips(example))
-        for example in tqdm(
-            examples, total=recipe.data.n_images, desc="render", unit="img", disable=not progress
+    if forest is None:
+        examples = generate_examples(recipe.data)
+        images = (
+            (example.depth_m, example.intrinsics, example.tips_m, _hidden_tips(example))
+            for example in tqdm(
+                examples,
+                total=recipe.data.n_images,
+                desc="render",
+                unit="img",
+                disable=not progress,
+            )
         )
+        settings = {
+            "data": asdict(recipe.data),
+            "detector": recipe.detector.as_dict(),
+        }
+        forest = train_on_images(images, config=recipe.training, extra_settings=settings)
+    elif recipe.verifier is None:
+        raise ValueError("the config has no [verifier] table: nothing to train for the forest")
+    if recipe.verifier is None:
+        return forest
+    return train_verifier(
+        replace(forest, verifier=None),
+        recipe.data,
+        recipe.detector,
+        recipe.verifier,
+        progress=progress,
     )
-    settings = {
-        "data": asdict(recipe.data),
-        "detector": recipe.detector.as_dict(),
-    }
-    return train_on_images(images, config=recipe.training, extra_settings=settings)

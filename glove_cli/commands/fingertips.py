@@ -36,6 +36,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("config", help="TOML config, e.g. configs/fingertips/default.toml")
     train.add_argument("--out", required=True, help="model file to write (.npz)")
     train.add_argument("--images", type=int, help="number of training images (overrides config)")
+    train.add_argument(
+        "--forest",
+        metavar="MODEL",
+        help="keep the Hough forest of this model and train only the config's [verifier]",
+    )
     _add_noise_option(train)
     train.set_defaults(run=run_train)
 
@@ -94,6 +99,11 @@ def _add_noise_option(parser: argparse.ArgumentParser) -> None:
 def _add_model_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", help="model file (.npz; default: the shipped model)")
     parser.add_argument("--c-thr", type=float, help="confidence threshold (default: the model's)")
+    parser.add_argument(
+        "--min-tip-probability",
+        type=float,
+        help="smallest peak verifier probability kept (default: the model's; 0: no check)",
+    )
     parser.add_argument("--stride", type=int, help="fixed pixel stride (default: the model's)")
 
 
@@ -114,14 +124,15 @@ def _data_overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 def run_train(args: argparse.Namespace) -> int:
     from builder.fingertip_training import load_recipe, train_from_recipe
-    from tracker.fingertips.forest import save_forest
+    from tracker.fingertips.forest import load_forest, save_forest
 
     recipe = load_recipe(args.config, **_data_overrides(args))
     out = Path(args.out)
     if not out.parent.is_dir():
         raise ValueError(f"{out.parent}: folder does not exist")
+    base = load_forest(args.forest) if args.forest else None
     started = time.perf_counter()
-    forest = train_from_recipe(recipe, progress=True)
+    forest = train_from_recipe(recipe, progress=True, forest=base)
     save_forest(forest, out)
     size_mb = out.stat().st_size / 1e6
     print(
@@ -157,6 +168,8 @@ def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
         if not args.c_thr > 0:
             raise ValueError(f"--c-thr: expected a positive threshold, got {args.c_thr}")
         config = replace(config, c_thr=args.c_thr)
+    if args.min_tip_probability is not None:
+        config = replace(config, min_tip_probability=args.min_tip_probability)
     if _positive("--stride", args.stride) is not None:
         config = replace(config, stride=args.stride, pixel_spacing_m=0.0)
     return model, config

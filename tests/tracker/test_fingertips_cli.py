@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from glove_cli.main import main
+from tracker.fingertips.forest import load_forest
 
 REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real_depth" / "hmodel_andrii"
 EVAL_KEYS = {
@@ -53,6 +54,7 @@ def run_glove(*args: str) -> subprocess.CompletedProcess:
         (["fingertips", "detect", "/no/such/folder", "--out", "x"], "not a folder"),
         (["fingertips", "eval", ".", "--model", "/no/model.npz"], "no such model file"),
         (["fingertips", "train", "/no/config.toml", "--out", "m.npz"], "cannot read config"),
+        (["fingertips", "eval", ".", "--min-tip-probability", "2"], "expected a probability"),
         (["fingertips", "synth", "x.toml", "--out", "d", "--noise", "loud"], "invalid choice"),
     ],
 )
@@ -113,3 +115,23 @@ def test_train_and_synth_on_a_tiny_config(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["frames"] == 2
     assert json.loads(result.stdout)["detector"]["depth_band_m"] == 0.2
+    # Then only a peak verifier for that forest, with looser candidates.
+    with open(config, "a") as stream:
+        stream.write(
+            "min_tip_probability = 0.5\n[detector.voting]\nmin_probability = 0.2\n"
+            "[verifier]\nn_images = 6\nn_trees = 3\n"
+        )
+    config.write_text(config.read_text().replace("c_thr = 2.0", "c_thr = 0.5"))
+    checked = tmp_path / "checked.npz"
+    result = run_glove(
+        "fingertips", "train", str(config), "--forest", str(model), "--out", str(checked)
+    )
+    assert result.returncode == 0, result.stderr
+    verifier = load_forest(checked).verifier
+    assert verifier is not None and verifier.n_trees == 3
+    np.testing.assert_array_equal(
+        load_forest(checked).node_feature, load_forest(model).node_feature
+    )
+    result = run_glove("fingertips", "eval", str(folder), "--model", str(checked), "--json")
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["detector"]["min_tip_probability"] == 0.5

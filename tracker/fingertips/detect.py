@@ -22,8 +22,10 @@ from tracker.fingertips.features import (
     stride_for_spacing,
 )
 from tracker.fingertips.forest import FingertipForest, apply_depth, predict_leaves
+from tracker.fingertips.verify import peak_features, verify_peaks
 from tracker.fingertips.voting import (
     DEFAULT_VOTING,
+    Peaks,
     Votes,
     VotingConfig,
     cast_votes,
@@ -47,6 +49,9 @@ class Detection:
     finger : str or None
         Finger name from the assignment to a posed model, None if unassigned or if no
         model was given.
+    tip_probability : float or None
+        The peak verifier's probability that this is a fingertip
+        (:mod:`tracker.fingertips.verify`); None if the model has no verifier.
     """
 
     u_px: float
@@ -56,6 +61,7 @@ class Detection:
     z_m: float
     confidence: float
     finger: str | None = None
+    tip_probability: float | None = None
 
 
 @dataclass(frozen=True)
@@ -80,6 +86,11 @@ class DetectorConfig:
         The stride grows until at most about this many pixels are evaluated (bounds
         the time per frame when a background surface lies within the band); 0: no
         bound. Vote weights scale with the stride, so confidences do not change.
+    min_tip_probability : float
+        Peaks whose verifier probability (:mod:`tracker.fingertips.verify`) is below
+        this are dropped; 0 keeps every peak above ``c_thr`` (and is the only value
+        allowed for a model without a verifier). With a verifier, ``c_thr`` only
+        selects the candidate peaks.
     voting : VotingConfig
     """
 
@@ -88,6 +99,7 @@ class DetectorConfig:
     pixel_spacing_m: float = 0.0
     depth_band_m: float = math.inf
     max_pixels: int = 0
+    min_tip_probability: float = 0.0
     voting: VotingConfig = DEFAULT_VOTING
 
     def __post_init__(self) -> None:
@@ -101,6 +113,10 @@ class DetectorConfig:
             raise ValueError(f"max_pixels: expected >= 0, got {self.max_pixels}")
         if not self.depth_band_m > 0:
             raise ValueError(f"depth_band_m: expected a positive depth, got {self.depth_band_m}")
+        if not 0 <= self.min_tip_probability <= 1:
+            raise ValueError(
+                f"min_tip_probability: expected a probability, got {self.min_tip_probability}"
+            )
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready settings (``depth_band_m`` inf becomes None)."""
@@ -186,8 +202,17 @@ def fingertip_votes(
     -------
     Votes
     """
+    return _frame_votes(depth_m, intrinsics_array(intrinsics), model, config)[0]
+
+
+def _frame_votes(
+    depth_m: ArrayLike,
+    camera: NDArray[np.float64],
+    model: FingertipForest,
+    config: DetectorConfig,
+) -> tuple[Votes, NDArray[np.float32]]:
+    """The votes of :func:`fingertip_votes` and the hand depth they come from."""
     depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
-    camera = intrinsics_array(intrinsics)
     masked = hand_depth(depth, model, depth_band_m=config.depth_band_m)
     stride = config.stride
     if config.pixel_spacing_m > 0:
@@ -200,9 +225,42 @@ def fingertip_votes(
     z = masked[pixels[:, 1], pixels[:, 0]]
     points = backproject(pixels, z, camera)
     area = (stride * z) ** 2 / np.float32(camera[0] * camera[1])
-    return cast_votes(
+    votes = cast_votes(
         points, prediction.probability, prediction.offset_m, area, config=config.voting
     )
+    return votes, masked
+
+
+def candidate_peaks(
+    depth_m: ArrayLike,
+    intrinsics: ArrayLike,
+    model: FingertipForest,
+    *,
+    config: DetectorConfig = DEFAULT_DETECTOR,
+) -> tuple[Peaks, NDArray[np.float32]]:
+    """Vote peaks above ``config.c_thr`` and their verifier features.
+
+    Parameters
+    ----------
+    depth_m : (H, W) float32
+        Depth in metres, 0 where missing.
+    intrinsics : (4,) float
+        ``(fx, fy, cx, cy)`` in pixels.
+    model : FingertipForest
+    config : DetectorConfig
+
+    Returns
+    -------
+    peaks : Peaks
+        Strongest first.
+    features : (K, len(PEAK_FEATURES)) float32
+        :func:`tracker.fingertips.verify.peak_features` of the peaks.
+    """
+    camera = intrinsics_array(intrinsics)
+    votes, masked = _frame_votes(depth_m, camera, model, config)
+    peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
+    features = peak_features(peaks, votes, masked, camera, bandwidth_m=config.voting.bandwidth_m)
+    return peaks, features
 
 
 def detect_fingertips(
@@ -243,8 +301,21 @@ def detect_fingertips(
         Strongest first.
     """
     camera = intrinsics_array(intrinsics)
-    votes = fingertip_votes(depth_m, camera, model, config=config)
-    peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
+    if config.min_tip_probability > 0 and model.verifier is None:
+        raise ValueError(
+            "min_tip_probability: the model has no peak verifier; use 0 or a model "
+            "trained with a [verifier] table"
+        )
+    tip_probability: NDArray[np.float32] | None = None
+    if model.verifier is None:
+        votes = _frame_votes(depth_m, camera, model, config)[0]
+        peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
+    else:
+        peaks, features = candidate_peaks(depth_m, camera, model, config=config)
+        tip_probability = verify_peaks(model.verifier, features)
+        keep = tip_probability >= config.min_tip_probability
+        peaks = Peaks(peaks.positions_m[keep], peaks.confidences[keep])
+        tip_probability = tip_probability[keep]
     names: list[str | None] = [None] * peaks.confidences.size
     if model_tips_m is not None:
         tips = as_array("model_tips_m", model_tips_m, (len(FINGER_NAMES), 3), np.float64)
@@ -267,6 +338,7 @@ def detect_fingertips(
             z_m=float(peaks.positions_m[k, 2]),
             confidence=float(peaks.confidences[k]),
             finger=names[k],
+            tip_probability=None if tip_probability is None else float(tip_probability[k]),
         )
         for k in range(peaks.confidences.size)
     )

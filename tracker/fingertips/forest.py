@@ -27,14 +27,22 @@ key                     shape, dtype        meaning
                                             pixel to its nearest fingertip, over the
                                             positive training pixels reaching the node
                                             (0 where there are none)
+``verifier_*``          see below           optional (format 2): the peak verifier
 ======================  ==================  ===============================================
+
+The peak verifier (:class:`tracker.fingertips.verify.PeakVerifier`) is stored as
+``verifier_tree_roots``, ``verifier_node_feature``, ``verifier_node_threshold``,
+``verifier_node_left``, ``verifier_node_right``, ``verifier_node_probability`` (the
+same node table layout) and ``verifier_features`` ``(F',) str``, the names of the peak
+features it was trained on; a model whose names differ from
+:data:`tracker.fingertips.verify.PEAK_FEATURES` is refused. Format 1 files (no
+verifier) are still read.
 """
 
 from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -49,20 +57,45 @@ from tracker.fingertips.features import (
     probe_image,
     read_probes,
 )
+from tracker.fingertips.trees import FeatureLookup, check_tree_table, descend
+from tracker.fingertips.verify import PEAK_FEATURES, PeakVerifier
 
 FORMAT_NAME = "glove-fingertip-forest"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+_VERIFIER_ARRAYS = (
+    "tree_roots",
+    "node_feature",
+    "node_threshold",
+    "node_left",
+    "node_right",
+    "node_probability",
+)
 
 DEFAULT_MODEL_PATH = Path(__file__).resolve().parent / "models" / "default.npz"
 """The pretrained forest shipped with the package (see ``docs/fingertips.md``)."""
 
-FeatureLookup = Callable[[NDArray[np.intp], NDArray[np.int32]], NDArray[np.float32]]
-"""``(rows, feature_index) -> values``: feature ``feature_index[k]`` of row ``rows[k]``."""
+__all__ = [
+    "DEFAULT_MODEL_PATH",
+    "FeatureLookup",
+    "FingertipForest",
+    "ForestPrediction",
+    "apply_depth",
+    "apply_features",
+    "descend",
+    "load_forest",
+    "predict_leaves",
+    "save_forest",
+]
 
 
 @dataclass(frozen=True)
 class FingertipForest:
-    """A trained fingertip forest; see the module docstring for the meaning of each array."""
+    """A trained fingertip forest; see the module docstring for the meaning of each array.
+
+    ``verifier`` is the optional peak verifier trained with it (None: detection keeps
+    peaks by their vote weight alone).
+    """
 
     offsets_m: NDArray[np.float32]
     depth_range_m: tuple[float, float]
@@ -75,6 +108,7 @@ class FingertipForest:
     node_offset_m: NDArray[np.float32]
     settings_json: str = "{}"
     version: str = ""
+    verifier: PeakVerifier | None = None
 
     def __post_init__(self) -> None:
         _check_forest(self)
@@ -115,28 +149,15 @@ class ForestPrediction:
 
 def _check_forest(forest: FingertipForest) -> None:
     n = forest.node_feature.shape[0]
-    for name in ("node_threshold", "node_left", "node_right", "node_probability"):
-        as_array(name, getattr(forest, name), (n,))
+    as_array("node_probability", forest.node_probability, (n,))
     as_array("node_offset_m", forest.node_offset_m, (n, 3))
     as_array("offsets_m", forest.offsets_m, (None, 2, 2))
-    roots = as_array("tree_roots", forest.tree_roots, (None,))
-    if roots.size == 0 or np.any(roots < 0) or np.any(roots >= n):
-        raise ValueError("tree_roots: expected at least one root, each a valid node index")
-    split = forest.node_feature >= 0
-    index = np.arange(n)
-    for name in ("node_left", "node_right"):
-        child = getattr(forest, name)[split]
-        # Children after their parent rule out cycles, so every descent ends at a leaf.
-        if np.any(child <= index[split]) or np.any(child >= n):
-            raise ValueError(f"{name}: each split's child must be a later node index")
-    if np.any(forest.node_feature >= forest.offsets_m.shape[0]):
-        raise ValueError("node_feature: index beyond the number of feature offsets")
+    check_tree_table(forest, forest.offsets_m.shape[0])
 
 
 def save_forest(forest: FingertipForest, path: str | os.PathLike[str]) -> None:
     """Write ``forest`` to an ``.npz`` file in the format of the module docstring."""
-    np.savez_compressed(
-        path,
+    arrays: dict[str, Any] = dict(
         format=np.array(FORMAT_NAME),
         format_version=np.array(FORMAT_VERSION, dtype=np.int64),
         version=np.array(forest.version),
@@ -150,6 +171,33 @@ def save_forest(forest: FingertipForest, path: str | os.PathLike[str]) -> None:
         node_right=forest.node_right.astype(np.int32),
         node_probability=forest.node_probability.astype(np.float32),
         node_offset_m=forest.node_offset_m.astype(np.float32),
+        **_verifier_arrays(forest.verifier),
+    )
+    np.savez_compressed(path, **arrays)
+
+
+def _verifier_arrays(verifier: PeakVerifier | None) -> dict[str, NDArray]:
+    if verifier is None:
+        return {}
+    arrays = {f"verifier_{name}": getattr(verifier, name) for name in _VERIFIER_ARRAYS}
+    return {**arrays, "verifier_features": np.array(PEAK_FEATURES)}
+
+
+def _read_verifier(data: Any, path: str) -> PeakVerifier | None:
+    if "verifier_tree_roots" not in data:
+        return None
+    names = tuple(str(name) for name in data["verifier_features"])
+    if names != PEAK_FEATURES:
+        raise ValueError(
+            f"{path}: its peak verifier uses other peak features than this code; "
+            "retrain the model (docs/fingertips.md)"
+        )
+    kinds = {"node_threshold": np.float32, "node_probability": np.float32}
+    return PeakVerifier(
+        **{
+            name: data[f"verifier_{name}"].astype(kinds.get(name, np.int32))
+            for name in _VERIFIER_ARRAYS
+        }
     )
 
 
@@ -168,10 +216,10 @@ def load_forest(path: str | os.PathLike[str] = DEFAULT_MODEL_PATH) -> FingertipF
     with np.load(path, allow_pickle=False) as data:
         if "format" not in data or str(data["format"]) != FORMAT_NAME:
             raise ValueError(f"{os.fspath(path)}: not a {FORMAT_NAME} file")
-        if int(data["format_version"]) != FORMAT_VERSION:
+        if int(data["format_version"]) not in READABLE_VERSIONS:
             raise ValueError(
                 f"{os.fspath(path)}: format version {int(data['format_version'])}, "
-                f"this code reads {FORMAT_VERSION}"
+                f"this code reads {', '.join(map(str, READABLE_VERSIONS))}"
             )
         near, far = (float(x) for x in data["depth_range_m"])
         return FingertipForest(
@@ -186,36 +234,8 @@ def load_forest(path: str | os.PathLike[str] = DEFAULT_MODEL_PATH) -> FingertipF
             node_offset_m=data["node_offset_m"].astype(np.float32),
             settings_json=str(data["settings_json"]),
             version=str(data["version"]),
+            verifier=_read_verifier(data, os.fspath(path)),
         )
-
-
-def descend(forest: FingertipForest, n_rows: int, lookup: FeatureLookup) -> NDArray[np.int32]:
-    """Drop ``n_rows`` samples down every tree; features come from ``lookup`` on demand.
-
-    Only the (sample, tree) pairs still at a split node are processed at each level.
-
-    Returns
-    -------
-    leaves : (n_rows, T) int32
-        Global index of the leaf each sample reaches in each tree.
-    """
-    n_trees = forest.n_trees
-    children = np.stack([forest.node_left, forest.node_right], axis=1)
-    leaves = np.tile(forest.tree_roots, n_rows)
-    # The state of the (sample, tree) pairs still at a split, compacted every level.
-    pair = np.flatnonzero(forest.node_feature[leaves] >= 0)
-    node = leaves[pair]
-    row = pair // n_trees
-    feature = forest.node_feature[node]
-    while pair.size:
-        go_right = lookup(row, feature) > forest.node_threshold[node]
-        node = children[node, go_right.astype(np.intp)]
-        feature = forest.node_feature[node]
-        done = feature < 0
-        leaves[pair[done]] = node[done]
-        going = ~done
-        pair, node, row, feature = pair[going], node[going], row[going], feature[going]
-    return leaves.reshape(n_rows, n_trees).astype(np.int32)
 
 
 def apply_features(forest: FingertipForest, features: ArrayLike) -> NDArray[np.int32]:

@@ -58,10 +58,24 @@ DEFAULT_VOTING = VotingConfig()
 
 @dataclass(frozen=True)
 class Votes:
-    """Weighted 3D votes: ``positions_m`` (M, 3) float32 metres, ``weights`` (M,) float32."""
+    """Weighted 3D votes and where they come from.
+
+    Attributes
+    ----------
+    positions_m : (M, 3) float32
+        Voted fingertip positions, camera frame, metres.
+    weights : (M,) float32
+        Vote weights (see the module docstring).
+    probability : (M,) float32
+        Fingertip probability of each voting pixel.
+    sources_m : (M, 3) float32
+        3D point of each voting pixel, metres.
+    """
 
     positions_m: NDArray[np.float32]
     weights: NDArray[np.float32]
+    probability: NDArray[np.float32]
+    sources_m: NDArray[np.float32]
 
 
 @dataclass(frozen=True)
@@ -109,6 +123,8 @@ def cast_votes(
     return Votes(
         positions_m=(points[keep] + offset[keep]).astype(np.float32),
         weights=weights.astype(np.float32),
+        probability=prob[keep],
+        sources_m=points[keep],
     )
 
 
