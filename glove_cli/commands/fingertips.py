@@ -68,6 +68,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     detect.add_argument(
         "--sheet", action="store_true", help="one contact sheet instead of an overlay per frame"
     )
+    detect.add_argument(
+        "--pose-guess",
+        action="store_true",
+        help="also fit a hand pose to each frame's detections (record key pose_guess) and "
+        "name their fingers by Eq. 11",
+    )
     detect.set_defaults(run=run_detect)
 
     evaluate = actions.add_parser(
@@ -179,10 +185,11 @@ def run_detect(args: argparse.Namespace) -> int:
     import cv2
     from tqdm import tqdm
 
-    from tracker.fingertips import detect_fingertips, fingertips_output
+    from tracker.fingertips.detector import FingertipDetector
     from tracker.fingertips.sequence import open_depth_sequence
 
     model, config = _load_model(args)
+    detector = FingertipDetector(model, config=config)
     sequence = open_depth_sequence(args.input)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -194,11 +201,10 @@ def run_detect(args: argparse.Namespace) -> int:
         for frame in tqdm(sequence.frames, desc="detect", unit="frame"):
             depth = sequence.read_depth(frame)
             started = time.perf_counter()
-            detections = detect_fingertips(depth, sequence.intrinsics, model, config=config)
+            record = detector.record(frame, depth, sequence.intrinsics, pose_guess=args.pose_guess)
             elapsed += time.perf_counter() - started
-            record = {"frame": frame, "fingertips": fingertips_output(detections)}
             stream.write(json.dumps(record) + "\n")
-            picture = overlay(depth, detections)
+            picture = overlay(depth, record, sequence.intrinsics)
             if args.sheet:
                 tiles.append(picture)
             else:
@@ -265,13 +271,14 @@ def _finite_or_none(value: Any) -> Any:
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
-def overlay(depth_m: Any, detections: Any) -> Any:
-    """``(H, W, 3) uint8`` RGB: depth in gray (near bright) with the detections circled.
-
-    Circle radius grows with confidence; a named finger is labelled.
+def overlay(depth_m: Any, record: dict[str, Any], intrinsics: Any) -> Any:
+    """``(H, W, 3) uint8`` RGB: depth in gray (near bright), the detections circled and
+    labelled (finger or "?", confidence), and the pose guess's skeleton if there is one.
     """
-    import cv2
     import numpy as np
+
+    from tracker.fingertips.features import project
+    from tracker.overlay import draw_fingertips, draw_skeleton
 
     valid = depth_m > 0
     picture = np.zeros(depth_m.shape + (3,), np.uint8)
@@ -280,13 +287,11 @@ def overlay(depth_m: Any, detections: Any) -> Any:
         scaled = 1.0 - np.clip((depth_m - near) / max(far - near, 1e-6), 0.0, 1.0)
         gray = (40 + 200 * scaled).astype(np.uint8)
         picture[valid] = gray[valid][:, None]
-    for d in detections:
-        centre = (round(d.u_px), round(d.v_px))
-        radius = max(3, round(2 + 2 * math.log1p(d.confidence)))
-        cv2.circle(picture, centre, radius, (255, 40, 40), 2, cv2.LINE_AA)
-        if d.finger:
-            cv2.putText(picture, d.finger[:2], centre, 0, 0.4, (255, 220, 0), 1, cv2.LINE_AA)
-    return picture
+    guess = record.get("pose_guess")
+    if guess is not None:
+        keypoints = np.asarray(guess["keypoints_3d_m"], dtype=np.float64)
+        picture = draw_skeleton(picture, project(keypoints, np.asarray(intrinsics)), radius_px=2)
+    return draw_fingertips(picture, record["fingertips"], radius_px=5)
 
 
 def contact_sheet(tiles: list[Any], columns: int = 6) -> Any:

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from glove_cli.main import main
+from tracker.fingertips.detector import FingertipDetector
 from tracker.fingertips.forest import load_forest
 
 REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real_depth" / "hmodel_andrii"
@@ -85,6 +86,13 @@ def test_detect_writes_a_record_and_an_overlay_per_frame(tmp_path: Path, capsys)
         for tip in record["fingertips"]:
             assert set(tip) == {"finger", "u_px", "v_px", "x_m", "y_m", "z_m", "confidence"}
     assert len(list((out / "overlay").glob("*.png"))) == 3
+    # The Python API gives the same records.
+    assert list(FingertipDetector().run(tmp_path / "seq")) == records
+    guessed = tmp_path / "guessed"
+    argv = ["fingertips", "detect", str(tmp_path / "seq"), "--out", str(guessed), "--pose-guess"]
+    assert main(argv) == 0
+    lines = (guessed / "fingertips.jsonl").read_text().splitlines()
+    assert all(json.loads(line)["pose_guess"] is None for line in lines)  # < 3 detections
     assert main(["fingertips", "detect", str(tmp_path / "seq"), "--out", str(out), "--sheet"]) == 0
     assert cv2.imread(str(out / "contact_sheet.png")).shape == (60, 3 * 80, 3)
 

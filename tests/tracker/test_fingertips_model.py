@@ -51,3 +51,33 @@ def test_shipped_model_finds_the_tips_of_a_rendered_open_hand(renderer) -> None:
     detections = detect_fingertips(depth, camera, model, config=model_detector_config(model))
     found = [np.linalg.norm(tips - (d.x_m, d.y_m, d.z_m), axis=1).min() for d in detections]
     assert sum(distance < 0.015 for distance in found) >= 3
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("view", ["palm", "back"])
+def test_pose_guess_from_detections_on_a_rendered_open_hand(renderer, view: str) -> None:
+    from glovedb.camera import KINECT_V1
+    from glovedb.hand_model import FINGERTIP_KEYPOINTS, forward_kinematics
+    from glovedb.postures import named_posture
+    from glovedb.views import named_view
+    from tracker.fingertips import FINGER_NAMES
+    from tracker.fingertips.detector import FingertipDetector
+
+    posture = named_posture("open")
+    rotation, translation = named_view(view, 0.45, renderer.mesh.skeleton.hand_length_m)
+    depth = renderer.render_labels(posture, rotation, translation).depth_m
+    camera = (KINECT_V1.fx, KINECT_V1.fy, KINECT_V1.cx, KINECT_V1.cy)
+    detector = FingertipDetector()
+    record = detector.record(0, depth, camera, pose_guess=True)
+    guess = record["pose_guess"]
+    assert guess is not None
+    cos = (np.trace(np.asarray(guess["rotation"]).T @ rotation) - 1) / 2
+    assert np.degrees(np.arccos(np.clip(cos, -1, 1))) < 10
+    assert np.linalg.norm(np.asarray(guess["translation_m"]) - translation) < 0.02
+    keypoints = forward_kinematics(posture).keypoints_m[0] @ rotation.T + translation
+    true_tips = dict(zip(FINGER_NAMES, keypoints[list(FINGERTIP_KEYPOINTS)], strict=True))
+    named = [tip for tip in record["fingertips"] if tip["finger"]]
+    assert len(named) >= 3 and len({tip["finger"] for tip in named}) == len(named)
+    for tip in named:
+        position = np.array([tip["x_m"], tip["y_m"], tip["z_m"]])
+        assert np.linalg.norm(position - true_tips[tip["finger"]]) < 0.015

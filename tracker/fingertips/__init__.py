@@ -13,8 +13,11 @@ from tracker.fingertips.detect import (
     fingertip_votes,
     fingertips_output,
     model_detector_config,
+    name_fingers,
 )
+from tracker.fingertips.detector import FingertipDetector
 from tracker.fingertips.forest import FingertipForest, load_forest, save_forest
+from tracker.fingertips.pose_guess import PoseGuess, guess_hand_pose
 from tracker.fingertips.voting import VotingConfig
 
 __all__ = [
@@ -23,13 +26,17 @@ __all__ = [
     "Assignment",
     "Detection",
     "DetectorConfig",
+    "FingertipDetector",
     "FingertipForest",
+    "PoseGuess",
     "VotingConfig",
     "assign_detections",
     "detect_fingertips",
     "fingertip_votes",
     "fingertips_output",
+    "guess_hand_pose",
     "load_forest",
     "model_detector_config",
+    "name_fingers",
     "save_forest",
 ]

@@ -316,20 +316,8 @@ def detect_fingertips(
         keep = tip_probability >= config.min_tip_probability
         peaks = Peaks(peaks.positions_m[keep], peaks.confidences[keep])
         tip_probability = tip_probability[keep]
-    names: list[str | None] = [None] * peaks.confidences.size
-    if model_tips_m is not None:
-        tips = as_array("model_tips_m", model_tips_m, (len(FINGER_NAMES), 3), np.float64)
-        assignment = assign_detections(
-            peaks.positions_m,
-            peaks.confidences,
-            tips,
-            c_thr=config.c_thr,
-            lam=lam,
-            distance_unit_m=distance_unit_m,
-        )
-        names = [FINGER_NAMES[t] if t >= 0 else None for t in assignment.finger_of_detection]
     uv = project(peaks.positions_m.astype(np.float64), camera)
-    return tuple(
+    detections = tuple(
         Detection(
             u_px=float(uv[k, 0]),
             v_px=float(uv[k, 1]),
@@ -337,10 +325,73 @@ def detect_fingertips(
             y_m=float(peaks.positions_m[k, 1]),
             z_m=float(peaks.positions_m[k, 2]),
             confidence=float(peaks.confidences[k]),
-            finger=names[k],
             tip_probability=None if tip_probability is None else float(tip_probability[k]),
         )
         for k in range(peaks.confidences.size)
+    )
+    if model_tips_m is None:
+        return detections
+    return name_fingers(
+        detections,
+        model_tips_m,
+        c_thr=config.c_thr,
+        min_tip_probability=config.min_tip_probability,
+        lam=lam,
+        distance_unit_m=distance_unit_m,
+    )
+
+
+def name_fingers(
+    detections: Sequence[Detection],
+    model_tips_m: ArrayLike,
+    *,
+    c_thr: float,
+    min_tip_probability: float = 0.0,
+    lam: float = 1.2,
+    distance_unit_m: float = 0.01,
+) -> tuple[Detection, ...]:
+    """Name the fingers of detections by Eq. 11 of Tzionas et al. 2014.
+
+    A detection's weight ``w_s`` (the cost of leaving it unassigned is ``lam * w_s``)
+    is its confidence over ``c_thr``, as in the paper, or, for verified detections
+    (``min_tip_probability > 0``), its verifier probability over
+    ``min_tip_probability``: in both cases 1 at the threshold that kept it.
+
+    Parameters
+    ----------
+    detections : sequence of Detection
+    model_tips_m : (5, 3) float
+        Fingertips of a posed hand model in the camera frame (metres), in the order of
+        :data:`FINGER_NAMES`.
+    c_thr : float
+        The confidence threshold the detections were kept with.
+    min_tip_probability : float
+        The verifier threshold they were kept with (0: none).
+    lam : float
+        Weight lambda of the assignment.
+    distance_unit_m : float
+        Unit (metres) of the assignment's detection-to-finger distances.
+
+    Returns
+    -------
+    tuple of Detection
+        The same detections with ``finger`` set (None: left unassigned).
+    """
+    tips = as_array("model_tips_m", model_tips_m, (len(FINGER_NAMES), 3), np.float64)
+    positions = np.array([[d.x_m, d.y_m, d.z_m] for d in detections]).reshape(-1, 3)
+    verified = min_tip_probability > 0 and all(d.tip_probability is not None for d in detections)
+    if verified:
+        weights = np.array([d.tip_probability for d in detections], dtype=np.float64)
+        threshold = min_tip_probability
+    else:
+        weights = np.array([d.confidence for d in detections], dtype=np.float64)
+        threshold = c_thr
+    assignment = assign_detections(
+        positions, weights, tips, c_thr=threshold, lam=lam, distance_unit_m=distance_unit_m
+    )
+    return tuple(
+        replace(d, finger=FINGER_NAMES[t] if t >= 0 else None)
+        for d, t in zip(detections, assignment.finger_of_detection, strict=True)
     )
 
 

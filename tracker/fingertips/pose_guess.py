@@ -1,0 +1,374 @@
+"""A hand pose guess from fingertip detections, to (re)initialise a tracker.
+
+Given the 3D fingertip detections of one frame and a posture to assume (the open hand
+by default, or a tracker's last posture), :func:`guess_hand_pose` finds the rigid
+pose of the hand model that puts its fingertips on the detections. Which detection is
+which finger is not known, so every assignment of at least ``min_matched``
+detections to distinct fingers is tried (at most 3,720 for six detections), each
+solved in closed form (Kabsch) and scored like Eq. 11 of Tzionas et al. (2014):
+squared residuals, plus a cost for every detection left out and every finger without
+a detection. Three fingertips fit a mirrored hand about as well as the right one, so
+when the hand's depth points are given, the best assignments are re-scored by how
+well the posed hand's capsules (:mod:`glovedb.capsules`) cover those points.
+
+The result uses the conventions of ``poses.jsonl`` (``p_cam = R @ p_hand + t``), so
+another tracker can start from it directly; our own tracker uses it the same way.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from glovedb._validate import as_array
+from glovedb.capsules import (
+    CapsuleSet,
+    concatenate,
+    finger_capsules,
+    palm_capsules,
+    pose_capsules,
+    round_cone_distance,
+)
+from glovedb.hand_model import (
+    FINGERTIP_KEYPOINTS,
+    N_JOINTS,
+    Skeleton,
+    forward_kinematics,
+    make_skeleton,
+)
+from tracker.fingertips.assignment import FINGER_NAMES
+from tracker.fingertips.detect import Detection
+from tracker.fingertips.features import (
+    backproject,
+    foreground_pixels,
+    intrinsics_array,
+    mask_depth_range,
+    nearest_band,
+)
+
+_PALM_HALF_THICKNESS = 0.06
+"""Half thickness of the palm capsules, in hand lengths (11 mm for a 0.19 m hand)."""
+_SURFACE_CLIP_M = 0.03
+_RESCORED = 24
+
+
+@dataclass(frozen=True)
+class PoseGuess:
+    """A rigid hand pose fitted to fingertip detections.
+
+    Attributes
+    ----------
+    rotation : (3, 3) float64
+        Hand to camera rotation (``p_cam = R @ p_hand + t``).
+    translation_m : (3,) float64
+        Wrist position in the camera frame, metres.
+    posture_rad : (20,) float64
+        The posture that was assumed.
+    keypoints_3d_m : (21, 3) float64
+        The posed model's keypoints in the camera frame, metres.
+    fingers : tuple of (str or None)
+        Per detection given, the finger it was matched to, or None (also for the
+        detections beyond ``max_detections``).
+    tip_rms_m : float
+        Root mean square distance of the matched detections to their model fingertips.
+    surface_rms_m : float
+        Root mean square distance of the hand points to the posed capsules (each
+        clipped at 3 cm); NaN when no points were given.
+    """
+
+    rotation: NDArray[np.float64]
+    translation_m: NDArray[np.float64]
+    posture_rad: NDArray[np.float64]
+    keypoints_3d_m: NDArray[np.float64]
+    fingers: tuple[str | None, ...]
+    tip_rms_m: float
+    surface_rms_m: float
+
+
+def detection_points(detections: Sequence[Detection]) -> NDArray[np.float64]:
+    """Camera-frame positions ``(K, 3)`` of detections, metres."""
+    return np.array([[d.x_m, d.y_m, d.z_m] for d in detections], dtype=np.float64).reshape(-1, 3)
+
+
+def hand_points_from_depth(
+    depth_m: ArrayLike,
+    intrinsics: ArrayLike,
+    *,
+    depth_range_m: tuple[float, float] = (0.15, 2.0),
+    band_m: float = 0.2,
+    max_points: int = 600,
+) -> NDArray[np.float64]:
+    """The 3D points of the nearest object (the hand), subsampled on a pixel grid.
+
+    Parameters
+    ----------
+    depth_m : (H, W) float
+        Depth in metres, 0 where missing.
+    intrinsics : (4,) float
+        ``(fx, fy, cx, cy)`` in pixels.
+    depth_range_m : tuple of float
+        Working range; depth outside is ignored.
+    band_m : float
+        Only depth within this many metres behind the nearest surface is the hand.
+    max_points : int
+        The pixel stride grows until at most about this many points remain.
+
+    Returns
+    -------
+    (N, 3) float64
+        Camera frame, metres.
+    """
+    camera = intrinsics_array(intrinsics)
+    masked = nearest_band(
+        mask_depth_range(depth_m, near_m=depth_range_m[0], far_m=depth_range_m[1]), band_m=band_m
+    )
+    stride = max(1, math.ceil(math.sqrt(np.count_nonzero(masked) / max(max_points, 1))))
+    pixels = foreground_pixels(masked, stride=stride)
+    return backproject(pixels, masked[pixels[:, 1], pixels[:, 0]], camera).astype(np.float64)
+
+
+def _align_with_points(
+    rotation: NDArray[np.float64],
+    translation: NDArray[np.float64],
+    model_tips: NDArray[np.float64],
+    detections: NDArray[np.float64],
+    cloud: NDArray[np.float64],
+    posed: tuple[NDArray[np.float64], NDArray[np.float64]],
+    capsules: CapsuleSet,
+    iterations: int = 10,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float, float]:
+    """ICP of the matched tips and the hand points to the posed capsules.
+
+    The tips weigh one each; the points within 3 cm of the surface together weigh as
+    much as five tips. Returns the pose, the tips' mean squared residual and the
+    points' mean squared (clipped) surface distance.
+    """
+    start, end = posed
+    for _ in range(iterations):
+        local = (cloud - translation) @ rotation
+        surface, distance = closest_capsule_points(
+            local, start, end, capsules.radius_start_m, capsules.radius_end_m
+        )
+        near = distance < _SURFACE_CLIP_M
+        weights = np.concatenate(
+            [np.ones(len(model_tips)), np.full(near.sum(), len(FINGER_NAMES) / max(near.sum(), 1))]
+        )
+        rotation, translation = weighted_rigid_fit(
+            np.vstack([model_tips, surface[near]]), np.vstack([detections, cloud[near]]), weights
+        )
+    local = (cloud - translation) @ rotation
+    _, distance = closest_capsule_points(
+        local, start, end, capsules.radius_start_m, capsules.radius_end_m
+    )
+    fitted = model_tips @ rotation.T + translation
+    tips_ms = float(np.mean(np.sum((fitted - detections) ** 2, axis=1)))
+    return (
+        rotation,
+        translation,
+        tips_ms,
+        float(np.mean(np.minimum(distance, _SURFACE_CLIP_M) ** 2)),
+    )
+
+
+def _hand_capsules(skeleton: Skeleton) -> CapsuleSet:
+    thickness = _PALM_HALF_THICKNESS * skeleton.hand_length_m
+    return concatenate(finger_capsules(skeleton), palm_capsules(skeleton, thickness))
+
+
+def _hypotheses(n_detections: int, min_matched: int) -> list[tuple[NDArray, NDArray]]:
+    """Per matched count m: (H, m) detection indices and (H, m) finger indices."""
+    groups = []
+    for m in range(min_matched, min(n_detections, len(FINGER_NAMES)) + 1):
+        pairs = [
+            (subset, fingers)
+            for subset in itertools.combinations(range(n_detections), m)
+            for fingers in itertools.permutations(range(len(FINGER_NAMES)), m)
+        ]
+        groups.append(
+            (np.array([p[0] for p in pairs], np.intp), np.array([p[1] for p in pairs], np.intp))
+        )
+    return groups
+
+
+def batch_rigid_fit(
+    source: NDArray[np.float64], target: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Least-squares ``target ~ R @ source + t`` for a batch of paired point sets.
+
+    Parameters
+    ----------
+    source, target : (H, m, 3) float64
+        ``m >= 3`` paired points per set.
+
+    Returns
+    -------
+    rotation : (H, 3, 3) float64
+    translation : (H, 3) float64
+    """
+    source_mean, target_mean = source.mean(axis=1), target.mean(axis=1)
+    covariance = np.einsum(
+        "hmi,hmj->hij", target - target_mean[:, None], source - source_mean[:, None]
+    )
+    u, _, vt = np.linalg.svd(covariance)
+    flip = np.sign(np.linalg.det(u @ vt))
+    u[:, :, 2] *= flip[:, None]
+    rotation = u @ vt
+    return rotation, target_mean - np.einsum("hij,hj->hi", rotation, source_mean)
+
+
+def weighted_rigid_fit(
+    source: NDArray[np.float64], target: NDArray[np.float64], weights: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Weighted least-squares ``target ~ R @ source + t`` for ``(N, 3)`` pairs, ``(N,)`` weights."""
+    w = weights / weights.sum()
+    source_mean, target_mean = w @ source, w @ target
+    covariance = ((target - target_mean) * w[:, None]).T @ (source - source_mean)
+    u, _, vt = np.linalg.svd(covariance)
+    u[:, 2] *= np.sign(np.linalg.det(u @ vt))
+    rotation = u @ vt
+    return rotation, target_mean - rotation @ source_mean
+
+
+def closest_capsule_points(
+    points: NDArray[np.float64],
+    start_m: NDArray[np.float64],
+    end_m: NDArray[np.float64],
+    radius_start_m: NDArray[np.float64],
+    radius_end_m: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Nearest surface point ``(N, 3)`` of a set of round cones, and its distance ``(N,)``.
+
+    The surface point lies on the nearest cone's sphere at its closest axis point, as
+    in :func:`glovedb.capsules.round_cone_distance`.
+    """
+    distance = round_cone_distance(points, start_m, end_m, radius_start_m, radius_end_m)
+    nearest = np.argmin(distance, axis=1)
+    a, b = start_m[nearest], end_m[nearest]
+    axis = b - a
+    t = np.clip(
+        np.einsum("ni,ni->n", points - a, axis)
+        / np.maximum(np.einsum("ni,ni->n", axis, axis), 1e-18),
+        0.0,
+        1.0,
+    )
+    centre = a + t[:, None] * axis
+    radius = radius_start_m[nearest] + t * (radius_end_m[nearest] - radius_start_m[nearest])
+    away = points - centre
+    length = np.maximum(np.linalg.norm(away, axis=1), 1e-12)
+    surface = centre + away * (radius / length)[:, None]
+    return surface, np.abs(distance[np.arange(len(points)), nearest])
+
+
+def guess_hand_pose(
+    detections_m: ArrayLike,
+    *,
+    posture_rad: ArrayLike | None = None,
+    skeleton: Skeleton | None = None,
+    hand_points_m: ArrayLike | None = None,
+    unmatched_cost_m: float = 0.02,
+    missed_cost_m: float = 0.01,
+    max_detections: int = 6,
+    min_matched: int = 3,
+) -> PoseGuess | None:
+    """Fit the rigid pose of the hand model to fingertip detections.
+
+    Parameters
+    ----------
+    detections_m : (K, 3) float
+        Detected fingertips in the camera frame, metres, strongest first (e.g.
+        :func:`detection_points` of :func:`~tracker.fingertips.detect_fingertips`).
+    posture_rad : (20,) float, optional
+        Posture to assume; default the open hand (all zeros).
+    skeleton : Skeleton, optional
+        Hand size; default the default hand.
+    hand_points_m : (N, 3) float, optional
+        Depth points of the hand (:func:`hand_points_from_depth`); they decide between
+        assignments whose fingertips fit about equally well (e.g. a mirrored hand).
+    unmatched_cost_m : float
+        A detection left out costs as much as a residual of this length.
+    missed_cost_m : float
+        A finger without a detection costs as much as a residual of this length.
+    max_detections : int
+        Only the first this many detections are used (the work grows quickly).
+    min_matched : int
+        Fewest detections matched to fingers (at least 3, which fix a rigid pose).
+
+    Returns
+    -------
+    PoseGuess or None
+        None when fewer than ``min_matched`` detections are given.
+    """
+    if min_matched < 3:
+        raise ValueError(f"min_matched: expected at least 3, got {min_matched}")
+    given = as_array("detections_m", detections_m, (None, 3), np.float64, finite=True)
+    points = given[:max_detections]
+    k = points.shape[0]
+    if k < min_matched:
+        return None
+    skeleton = skeleton or make_skeleton()
+    posture = (
+        np.zeros(N_JOINTS)
+        if posture_rad is None
+        else as_array("posture_rad", posture_rad, (N_JOINTS,), np.float64, finite=True)
+    )
+    kinematics = forward_kinematics(posture, skeleton)
+    tips = kinematics.keypoints_m[0, list(FINGERTIP_KEYPOINTS)]
+    candidates = []
+    for detection_index, finger_index in _hypotheses(k, min_matched):
+        m = detection_index.shape[1]
+        rotation, translation = batch_rigid_fit(tips[finger_index], points[detection_index])
+        fitted = np.einsum("hij,hmj->hmi", rotation, tips[finger_index]) + translation[:, None]
+        squared = np.sum((fitted - points[detection_index]) ** 2, axis=(1, 2))
+        cost = squared + (k - m) * unmatched_cost_m**2 + (len(FINGER_NAMES) - m) * missed_cost_m**2
+        for h in np.argsort(cost, kind="stable")[:_RESCORED]:
+            candidates.append(
+                (float(cost[h]), float(squared[h]) / m, rotation[h], translation[h],
+                 detection_index[h], finger_index[h])
+            )  # fmt: skip
+    candidates.sort(key=lambda c: c[0])
+    candidates = candidates[:_RESCORED]
+    surface = np.full(len(candidates), math.nan)
+    if hand_points_m is not None:
+        cloud = as_array("hand_points_m", hand_points_m, (None, 3), np.float64, finite=True)
+        if cloud.shape[0]:
+            capsules = _hand_capsules(skeleton)
+            start, end = pose_capsules(capsules, kinematics.bone_transforms[0])
+            for c, (_, _, rotation, translation, _, _) in enumerate(candidates):
+                local = (cloud - translation) @ rotation  # R^T (p - t), row vectors
+                distance = round_cone_distance(
+                    local, start, end, capsules.radius_start_m, capsules.radius_end_m
+                ).min(axis=1)
+                surface[c] = float(np.mean(np.minimum(np.abs(distance), _SURFACE_CLIP_M) ** 2))
+    total = np.array([c[0] for c in candidates])
+    if np.all(np.isfinite(surface)):
+        total = total + len(FINGER_NAMES) * surface
+    best = int(np.argmin(total))
+    _, mean_squared, rotation, translation, detection_index, finger_index = candidates[best]
+    if np.isfinite(surface[best]):
+        rotation, translation, mean_squared, surface[best] = _align_with_points(
+            rotation,
+            translation,
+            tips[finger_index],
+            points[detection_index],
+            cloud,
+            pose_capsules(capsules, kinematics.bone_transforms[0]),
+            capsules,
+        )
+    fingers: list[str | None] = [None] * given.shape[0]
+    for d, f in zip(detection_index, finger_index, strict=True):
+        fingers[int(d)] = FINGER_NAMES[int(f)]
+    keypoints = kinematics.keypoints_m[0] @ rotation.T + translation
+    return PoseGuess(
+        rotation=rotation,
+        translation_m=translation,
+        posture_rad=posture,
+        keypoints_3d_m=keypoints,
+        fingers=tuple(fingers),
+        tip_rms_m=math.sqrt(mean_squared),
+        surface_rms_m=math.sqrt(surface[best]) if np.isfinite(surface[best]) else math.nan,
+    )
