@@ -88,6 +88,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     evaluate.add_argument(
         "--annotations", help="annotation file in INPUT (default: annotations.jsonl if present)"
     )
+    evaluate.add_argument(
+        "--pose-guess",
+        action="store_true",
+        help="also score hand pose guesses against groundtruth.jsonl poses (rendered folders)",
+    )
     evaluate.add_argument("--json", action="store_true", help="print one JSON object")
     evaluate.set_defaults(run=run_eval)
 
@@ -232,6 +237,8 @@ def run_eval(args: argparse.Namespace) -> int:
         name = (
             "annotations.jsonl" if (root / "annotations.jsonl").is_file() else "groundtruth.jsonl"
         )
+    if args.pose_guess and not (root / "groundtruth.jsonl").is_file():
+        raise ValueError(f"{root}: pose guesses need groundtruth.jsonl (a rendered folder)")
     model, config = _load_model(args)
     data = read_annotated_depth(root, annotations=name)
     metrics = evaluate_detector(data, model, config=config, progress=tqdm)
@@ -250,8 +257,16 @@ def run_eval(args: argparse.Namespace) -> int:
         "model": str(args.model or "default"),
         "detector": config.as_dict(),
     }
+    guesses = None
+    if args.pose_guess:
+        from tracker.fingertips.detector import FingertipDetector
+        from tracker.fingertips.evaluation import evaluate_pose_guesses
+
+        detector = FingertipDetector(model, config=config)
+        guesses = evaluate_pose_guesses(root, detector, progress=tqdm)
+        result["pose_guess"] = guesses.as_dict()
     if args.json:
-        print(json.dumps({k: _finite_or_none(v) for k, v in result.items()}))
+        print(json.dumps(_finite_or_none(result)))
         return 0
     print(
         f"{metrics.frames} frames, {metrics.annotated_tips} annotated tips, "
@@ -264,10 +279,20 @@ def run_eval(args: argparse.Namespace) -> int:
         f"{metrics.ms_per_frame:.1f} ms per frame",
         file=sys.stdout,
     )
+    if guesses is not None:
+        print(
+            f"pose guess: {guesses.guessed} of {guesses.frames} right-hand frames; medians "
+            f"{guesses.rotation_deg_median:.1f} deg, wrist {guesses.wrist_mm_median:.0f} mm, "
+            f"keypoints {guesses.keypoint_mm_median:.0f} mm; "
+            f"{100 * guesses.within_15deg:.0f}% within 15 deg; {guesses.ms_per_guess:.0f} ms"
+        )
     return 0
 
 
 def _finite_or_none(value: Any) -> Any:
+    """``value`` with every non-finite float (also inside dicts) replaced by None."""
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 

@@ -56,6 +56,7 @@ def run_glove(*args: str) -> subprocess.CompletedProcess:
         (["fingertips", "eval", ".", "--model", "/no/model.npz"], "no such model file"),
         (["fingertips", "train", "/no/config.toml", "--out", "m.npz"], "cannot read config"),
         (["fingertips", "eval", ".", "--min-tip-probability", "2"], "expected a probability"),
+        (["fingertips", "eval", str(REAL), "--pose-guess"], "need groundtruth.jsonl"),
         (["fingertips", "synth", "x.toml", "--out", "d", "--noise", "loud"], "invalid choice"),
     ],
 )
@@ -119,9 +120,14 @@ def test_train_and_synth_on_a_tiny_config(tmp_path: Path) -> None:
     folder = tmp_path / "synth"
     result = run_glove("fingertips", "synth", str(config), "--out", str(folder), "--images", "2")
     assert result.returncode == 0, result.stderr
-    result = run_glove("fingertips", "eval", str(folder), "--model", str(model), "--json")
+    result = run_glove(
+        "fingertips", "eval", str(folder), "--model", str(model), "--json", "--pose-guess"
+    )
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["frames"] == 2
+    truth = [json.loads(line) for line in (folder / "groundtruth.jsonl").read_text().splitlines()]
+    right = sum(r["hand"] == "right" and r["hand_visible"] for r in truth)
+    assert json.loads(result.stdout)["pose_guess"]["frames"] == right
     assert json.loads(result.stdout)["detector"]["depth_band_m"] == 0.2
     # Then only a peak verifier for that forest, with looser candidates.
     with open(config, "a") as stream:

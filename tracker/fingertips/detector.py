@@ -22,7 +22,7 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from glovedb.hand_model import FINGERTIP_KEYPOINTS, Skeleton
 from tracker.fingertips.detect import (
@@ -77,6 +77,7 @@ class FingertipDetector:
             model = load_forest(DEFAULT_MODEL_PATH if model is None else model)
         self.model = model
         self.config = config if config is not None else model_detector_config(model)
+        self._postures: NDArray[np.float64] | None = None
 
     def detect(
         self, depth_m: ArrayLike, intrinsics: ArrayLike, *, model_tips_m: ArrayLike | None = None
@@ -97,9 +98,13 @@ class FingertipDetector:
     ) -> PoseGuess | None:
         """A hand pose fitted to the detections and the frame's hand points.
 
-        See :func:`~tracker.fingertips.pose_guess.guess_hand_pose`; None with fewer
-        than three detections.
+        See :func:`~tracker.fingertips.pose_guess.guess_hand_pose`; ``posture_rad``
+        ``(20,)`` or ``(P, 20)`` are the postures to choose from (default: the
+        project's named postures, :func:`glovedb.postures.load_named_postures`).
+        None with fewer than three detections.
         """
+        if posture_rad is None:
+            posture_rad = self._named_postures()
         near, far = self.model.depth_range_m
         band = self.config.depth_band_m if np.isfinite(self.config.depth_band_m) else 0.2
         points = hand_points_from_depth(depth_m, intrinsics, depth_range_m=(near, far), band_m=band)
@@ -122,7 +127,7 @@ class FingertipDetector:
         """One ``fingertips.jsonl`` record: ``frame``, ``fingertips`` (and ``pose_guess``).
 
         With ``pose_guess``, a hand pose is fitted to the detections
-        (:meth:`guess_pose`, assuming ``posture_rad`` or the open hand) and the
+        (:meth:`guess_pose`, with ``posture_rad`` or the named postures) and the
         detections are named by Eq. 11 against the fitted model's fingertips.
         """
         detections = self.detect(depth_m, intrinsics)
@@ -142,6 +147,13 @@ class FingertipDetector:
         else:
             record["fingertips"] = fingertips_output(detections)
         return record
+
+    def _named_postures(self) -> NDArray[np.float64]:
+        if self._postures is None:
+            from glovedb.postures import load_named_postures
+
+            self._postures = np.stack(list(load_named_postures().values()))
+        return self._postures
 
     def with_settings(self, **changes: Any) -> FingertipDetector:
         """A detector with the same model and some settings changed (e.g. ``c_thr``)."""

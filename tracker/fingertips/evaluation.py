@@ -38,6 +38,7 @@ from tracker.fingertips.detect import (
     DetectorConfig,
     detect_fingertips,
 )
+from tracker.fingertips.detector import FingertipDetector
 from tracker.fingertips.forest import FingertipForest
 from tracker.fingertips.sequence import read_depth_scale, read_intrinsics
 
@@ -291,3 +292,112 @@ def evaluate_detector(
     metrics = fingertip_metrics(detections, data.tips_m, data.tips_px)
     n_frames = max(len(detections), 1)
     return dataclasses.replace(metrics, ms_per_frame=1000.0 * elapsed / n_frames)
+
+
+@dataclass(frozen=True)
+class PoseGuessMetrics:
+    """How well :meth:`FingertipDetector.guess_pose` starts a tracker, against rendered truth.
+
+    Attributes
+    ----------
+    frames : int
+        Right-hand frames with a visible hand (the guess fits a right hand).
+    guessed : int
+        Of those, frames with a guess (at least three detections).
+    rotation_deg_median, wrist_mm_median, keypoint_mm_median : float
+        Medians over the guessed frames: rotation angle error, wrist distance, mean
+        distance of the 21 keypoints.
+    within_15deg : float
+        Share of the guessed frames with a rotation error below 15 degrees.
+    ms_per_guess : float
+        Mean wall-clock time of the guess (detection not included).
+    """
+
+    frames: int
+    guessed: int
+    rotation_deg_median: float
+    wrist_mm_median: float
+    keypoint_mm_median: float
+    within_15deg: float
+    ms_per_guess: float
+
+    def as_dict(self) -> dict[str, float | int]:
+        """The metrics as a JSON-ready dict."""
+        return asdict(self)
+
+
+def rotation_angle_deg(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+    """Angle of the rotation between two rotation matrices, degrees."""
+    cosine = (np.trace(a.T @ b) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+
+
+def evaluate_pose_guesses(
+    folder: str | os.PathLike[str],
+    detector: FingertipDetector,
+    *,
+    posture_rad: NDArray[np.float64] | None = None,
+    progress: Callable[[Iterable[dict]], Iterable[dict]] | None = None,
+) -> PoseGuessMetrics:
+    """Score pose guesses on a rendered folder whose ``groundtruth.jsonl`` has poses.
+
+    Parameters
+    ----------
+    folder : path
+        Written by ``glove fingertips synth`` or ``glove render-sequence``.
+    detector : FingertipDetector
+    posture_rad : (20,) or (P, 20) float, optional
+        Postures offered to the guess (default: the detector's, the named postures).
+    progress : callable, optional
+        Wraps the record iterable (e.g. ``tqdm.tqdm``).
+
+    Raises
+    ------
+    ValueError
+        If ``groundtruth.jsonl`` is missing or has no poses.
+    """
+    from glovedb.hand_model import make_skeleton
+    from tracker.fingertips.sequence import open_depth_sequence
+
+    root = Path(folder)
+    path = root / "groundtruth.jsonl"
+    if not path.is_file():
+        raise ValueError(f"{root}: pose guesses need groundtruth.jsonl (a rendered folder)")
+    records = [json.loads(line) for line in path.read_text().splitlines() if line]
+    if records and "rotation" not in records[0]:
+        raise ValueError(f"{path}: no rotation and translation_m to score pose guesses with")
+    sequence = open_depth_sequence(root)
+    rows, elapsed = [], 0.0
+    usable = [
+        r for r in records if r.get("hand_visible", True) and r.get("hand", "right") == "right"
+    ]
+    for record in progress(usable) if progress is not None else usable:
+        depth = sequence.read_depth(int(record["frame"]))
+        detections = detector.detect(depth, sequence.intrinsics)
+        skeleton = make_skeleton(record["hand_length_m"]) if "hand_length_m" in record else None
+        started = time.perf_counter()
+        guess = detector.guess_pose(
+            detections, depth, sequence.intrinsics, posture_rad=posture_rad, skeleton=skeleton
+        )
+        elapsed += time.perf_counter() - started
+        if guess is None:
+            continue
+        keypoints = np.asarray(record["keypoints_3d_m"], dtype=np.float64)
+        rows.append(
+            (
+                rotation_angle_deg(guess.rotation, np.asarray(record["rotation"], np.float64)),
+                1000.0 * float(np.linalg.norm(guess.translation_m - record["translation_m"])),
+                1000.0 * float(np.linalg.norm(guess.keypoints_3d_m - keypoints, axis=1).mean()),
+            )
+        )
+    errors = np.array(rows).reshape(-1, 3)
+    median = np.median(errors, axis=0) if rows else np.full(3, math.nan)
+    return PoseGuessMetrics(
+        frames=len(usable),
+        guessed=len(rows),
+        rotation_deg_median=float(median[0]),
+        wrist_mm_median=float(median[1]),
+        keypoint_mm_median=float(median[2]),
+        within_15deg=_safe_ratio(float(np.sum(errors[:, 0] < 15.0)), len(rows)),
+        ms_per_guess=1000.0 * elapsed / max(len(usable), 1),
+    )

@@ -141,12 +141,12 @@ def _align_with_points(
     posed: tuple[NDArray[np.float64], NDArray[np.float64]],
     capsules: CapsuleSet,
     iterations: int = 10,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], float, float]:
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """ICP of the matched tips and the hand points to the posed capsules.
 
     The tips weigh one each; the points within 3 cm of the surface together weigh as
-    much as five tips. Returns the pose, the tips' mean squared residual and the
-    points' mean squared (clipped) surface distance.
+    much as five tips. Returns the pose and the points' mean squared (clipped) surface
+    distance.
     """
     start, end = posed
     for _ in range(iterations):
@@ -165,14 +165,7 @@ def _align_with_points(
     _, distance = closest_capsule_points(
         local, start, end, capsules.radius_start_m, capsules.radius_end_m
     )
-    fitted = model_tips @ rotation.T + translation
-    tips_ms = float(np.mean(np.sum((fitted - detections) ** 2, axis=1)))
-    return (
-        rotation,
-        translation,
-        tips_ms,
-        float(np.mean(np.minimum(distance, _SURFACE_CLIP_M) ** 2)),
-    )
+    return rotation, translation, float(np.mean(np.minimum(distance, _SURFACE_CLIP_M) ** 2))
 
 
 def _hand_capsules(skeleton: Skeleton) -> CapsuleSet:
@@ -282,13 +275,15 @@ def guess_hand_pose(
     detections_m : (K, 3) float
         Detected fingertips in the camera frame, metres, strongest first (e.g.
         :func:`detection_points` of :func:`~tracker.fingertips.detect_fingertips`).
-    posture_rad : (20,) float, optional
-        Posture to assume; default the open hand (all zeros).
+    posture_rad : (20,) or (P, 20) float, optional
+        Posture to assume, or several to choose from (the best fit wins); default
+        the open hand (all zeros).
     skeleton : Skeleton, optional
         Hand size; default the default hand.
     hand_points_m : (N, 3) float, optional
         Depth points of the hand (:func:`hand_points_from_depth`); they decide between
-        assignments whose fingertips fit about equally well (e.g. a mirrored hand).
+        assignments whose fingertips fit about equally well (e.g. a mirrored hand)
+        and between postures, and refine the pose of the best one.
     unmatched_cost_m : float
         A detection left out costs as much as a residual of this length.
     missed_cost_m : float
@@ -311,64 +306,85 @@ def guess_hand_pose(
     if k < min_matched:
         return None
     skeleton = skeleton or make_skeleton()
-    posture = (
-        np.zeros(N_JOINTS)
+    postures = (
+        np.zeros((1, N_JOINTS))
         if posture_rad is None
-        else as_array("posture_rad", posture_rad, (N_JOINTS,), np.float64, finite=True)
-    )
-    kinematics = forward_kinematics(posture, skeleton)
-    tips = kinematics.keypoints_m[0, list(FINGERTIP_KEYPOINTS)]
-    candidates = []
+        else as_array("posture_rad", posture_rad, (..., N_JOINTS), np.float64, finite=True)
+    ).reshape(-1, N_JOINTS)
+    kinematics = forward_kinematics(postures, skeleton)
+    all_tips = kinematics.keypoints_m[:, list(FINGERTIP_KEYPOINTS)]
+    candidates: list[_Candidate] = []
     for detection_index, finger_index in _hypotheses(k, min_matched):
         m = detection_index.shape[1]
-        rotation, translation = batch_rigid_fit(tips[finger_index], points[detection_index])
-        fitted = np.einsum("hij,hmj->hmi", rotation, tips[finger_index]) + translation[:, None]
-        squared = np.sum((fitted - points[detection_index]) ** 2, axis=(1, 2))
-        cost = squared + (k - m) * unmatched_cost_m**2 + (len(FINGER_NAMES) - m) * missed_cost_m**2
-        for h in np.argsort(cost, kind="stable")[:_RESCORED]:
-            candidates.append(
-                (float(cost[h]), float(squared[h]) / m, rotation[h], translation[h],
-                 detection_index[h], finger_index[h])
-            )  # fmt: skip
-    candidates.sort(key=lambda c: c[0])
+        for p, tips in enumerate(all_tips):
+            rotation, translation = batch_rigid_fit(tips[finger_index], points[detection_index])
+            fitted = np.einsum("hij,hmj->hmi", rotation, tips[finger_index]) + translation[:, None]
+            squared = np.sum((fitted - points[detection_index]) ** 2, axis=(1, 2))
+            cost = (
+                squared + (k - m) * unmatched_cost_m**2 + (len(FINGER_NAMES) - m) * missed_cost_m**2
+            )
+            for h in np.argsort(cost, kind="stable")[:_RESCORED]:
+                candidates.append(
+                    _Candidate(float(cost[h]), p, rotation[h], translation[h],
+                               detection_index[h], finger_index[h])
+                )  # fmt: skip
+    candidates.sort(key=lambda c: c.cost)
     candidates = candidates[:_RESCORED]
-    surface = np.full(len(candidates), math.nan)
-    if hand_points_m is not None:
-        cloud = as_array("hand_points_m", hand_points_m, (None, 3), np.float64, finite=True)
-        if cloud.shape[0]:
-            capsules = _hand_capsules(skeleton)
-            start, end = pose_capsules(capsules, kinematics.bone_transforms[0])
-            for c, (_, _, rotation, translation, _, _) in enumerate(candidates):
-                local = (cloud - translation) @ rotation  # R^T (p - t), row vectors
-                distance = round_cone_distance(
-                    local, start, end, capsules.radius_start_m, capsules.radius_end_m
-                ).min(axis=1)
-                surface[c] = float(np.mean(np.minimum(np.abs(distance), _SURFACE_CLIP_M) ** 2))
-    total = np.array([c[0] for c in candidates])
-    if np.all(np.isfinite(surface)):
-        total = total + len(FINGER_NAMES) * surface
-    best = int(np.argmin(total))
-    _, mean_squared, rotation, translation, detection_index, finger_index = candidates[best]
-    if np.isfinite(surface[best]):
-        rotation, translation, mean_squared, surface[best] = _align_with_points(
-            rotation,
-            translation,
-            tips[finger_index],
-            points[detection_index],
+    best = candidates[0]
+    rotation, translation = best.rotation, best.translation
+    model_tips = all_tips[best.posture][best.fingers]
+    surface_ms = math.nan
+    cloud = (
+        None
+        if hand_points_m is None
+        else as_array("hand_points_m", hand_points_m, (None, 3), np.float64, finite=True)
+    )
+    if cloud is not None and cloud.shape[0]:
+        capsules = _hand_capsules(skeleton)
+        posed = [pose_capsules(capsules, bones) for bones in kinematics.bone_transforms]
+        total = []
+        for candidate in candidates:
+            local = (cloud - candidate.translation) @ candidate.rotation  # R^T (p - t)
+            start, end = posed[candidate.posture]
+            distance = round_cone_distance(
+                local, start, end, capsules.radius_start_m, capsules.radius_end_m
+            ).min(axis=1)
+            clipped = float(np.mean(np.minimum(np.abs(distance), _SURFACE_CLIP_M) ** 2))
+            total.append(candidate.cost + len(FINGER_NAMES) * clipped)
+        best = candidates[int(np.argmin(total))]
+        model_tips = all_tips[best.posture][best.fingers]
+        rotation, translation, surface_ms = _align_with_points(
+            best.rotation,
+            best.translation,
+            model_tips,
+            points[best.detections],
             cloud,
-            pose_capsules(capsules, kinematics.bone_transforms[0]),
+            posed[best.posture],
             capsules,
         )
+    fitted = model_tips @ rotation.T + translation
+    tip_ms = float(np.mean(np.sum((fitted - points[best.detections]) ** 2, axis=1)))
     fingers: list[str | None] = [None] * given.shape[0]
-    for d, f in zip(detection_index, finger_index, strict=True):
+    for d, f in zip(best.detections, best.fingers, strict=True):
         fingers[int(d)] = FINGER_NAMES[int(f)]
-    keypoints = kinematics.keypoints_m[0] @ rotation.T + translation
     return PoseGuess(
         rotation=rotation,
         translation_m=translation,
-        posture_rad=posture,
-        keypoints_3d_m=keypoints,
+        posture_rad=postures[best.posture].copy(),
+        keypoints_3d_m=kinematics.keypoints_m[best.posture] @ rotation.T + translation,
         fingers=tuple(fingers),
-        tip_rms_m=math.sqrt(mean_squared),
-        surface_rms_m=math.sqrt(surface[best]) if np.isfinite(surface[best]) else math.nan,
+        tip_rms_m=math.sqrt(tip_ms),
+        surface_rms_m=math.sqrt(surface_ms) if np.isfinite(surface_ms) else math.nan,
     )
+
+
+@dataclass(frozen=True)
+class _Candidate:
+    """One assignment hypothesis: its Eq. 11-like cost, posture index and pose."""
+
+    cost: float
+    posture: int
+    rotation: NDArray[np.float64]
+    translation: NDArray[np.float64]
+    detections: NDArray[np.intp]
+    fingers: NDArray[np.intp]
