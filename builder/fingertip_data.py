@@ -3,7 +3,9 @@
 Every example is one depth image of the hand model in a random scene:
 
 - **posture**: a named posture, an interpolation between two named postures (with a
-  few degrees of jitter), or a uniform sample within the joint limits;
+  few degrees of jitter), or a uniform sample within the joint limits; optionally a
+  share of scenes with curled fingers (claw / half fist, :func:`curl_fingers`), most
+  of them seen from the palm side;
 - **view**: the camera looks at the middle of the hand from a direction mostly within
   a cone around the palm or the back normal and otherwise anywhere on the sphere, at
   0.3-1.2 m, rolled about its axis, with the hand moved off the image centre;
@@ -47,6 +49,7 @@ from glovedb.hand_model import (
     DEFAULT_HAND_LENGTH_M,
     FINGERS,
     FINGERTIP_KEYPOINTS,
+    JOINT_NAMES,
     N_JOINTS,
     forward_kinematics,
     joint_limits_rad,
@@ -109,6 +112,21 @@ class FingertipDataConfig:
         degrees.
     occlusion_tolerance_m : float
         A tip is hidden when the depth at its pixel is more than this in front of it.
+    curl_fraction : float
+        Share of scenes whose four fingers are curled toward the palm (claw, half
+        fist; :func:`curl_fingers`) on top of a posture drawn as usual (which gives the
+        thumb and the fingers left uncurled). 0 (default): none, and no random draw,
+        so older configs render the same scenes.
+    curl_finger_probability : float
+        In a curled scene, each of the four fingers is curled with this probability.
+    curl_mcp_range_deg, curl_pip_range_deg, curl_dip_range_deg : tuple of float
+        A curled scene draws one MCP, PIP and DIP flexion uniformly in these ranges,
+        degrees; every curled finger gets them plus ``posture_jitter_deg`` of Gaussian
+        jitter each (clipped to the joint limits).
+    curl_palm_fraction : float
+        Share of the curled scenes seen from the palm side: the direction to the camera
+        is uniform over the cap within ``facing_cone_deg`` of the palm normal; the
+        others are drawn like every other scene.
     seed : int
         Seed of every random choice.
     """
@@ -139,6 +157,12 @@ class FingertipDataConfig:
     wrist_flex_max_deg: float = 50.0
     wrist_deviation_max_deg: float = 25.0
     occlusion_tolerance_m: float = 0.015
+    curl_fraction: float = 0.0
+    curl_finger_probability: float = 1.0
+    curl_mcp_range_deg: tuple[float, float] = (0.0, 70.0)
+    curl_pip_range_deg: tuple[float, float] = (75.0, 110.0)
+    curl_dip_range_deg: tuple[float, float] = (30.0, 85.0)
+    curl_palm_fraction: float = 0.7
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -150,6 +174,13 @@ class FingertipDataConfig:
                 raise ValueError(f"{name}: expected 0 <= min <= max, got {(low, high)}")
         if len(self.posture_mix) != 3 or min(self.posture_mix) < 0 or sum(self.posture_mix) <= 0:
             raise ValueError(f"posture_mix: expected 3 non-negative shares, got {self.posture_mix}")
+        for name in ("curl_mcp_range_deg", "curl_pip_range_deg", "curl_dip_range_deg"):
+            low, high = getattr(self, name)
+            if not low <= high:
+                raise ValueError(f"{name}: expected min <= max, got {(low, high)}")
+        for name in ("curl_fraction", "curl_finger_probability", "curl_palm_fraction"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"{name}: expected a share in [0, 1], got {getattr(self, name)}")
         if not self.noise:
             raise ValueError("noise: expected at least one preset")
         for preset in self.noise:
@@ -255,6 +286,56 @@ def sample_posture(
     return rng.uniform(limits[:, 0], limits[:, 1])
 
 
+CURLED_FINGERS = ("index", "middle", "ring", "little")
+"""The fingers :func:`curl_fingers` bends (the thumb keeps its posture)."""
+
+
+def curl_fingers(
+    posture_rad: NDArray[np.float64],
+    config: FingertipDataConfig,
+    rng: np.random.Generator,
+) -> NDArray[np.float64]:
+    """``posture_rad`` with the four fingers curled toward the palm (claw, half fist).
+
+    One MCP, PIP and DIP flexion is drawn uniformly in ``config.curl_*_range_deg``;
+    each finger is curled with probability ``config.curl_finger_probability`` and then
+    gets those angles plus ``config.posture_jitter_deg`` of Gaussian jitter, clipped to
+    the joint limits. Abduction and the thumb are kept.
+
+    Returns
+    -------
+    (20,) float64
+        Radians.
+    """
+    angles = [
+        rng.uniform(*config.curl_mcp_range_deg),
+        rng.uniform(*config.curl_pip_range_deg),
+        rng.uniform(*config.curl_dip_range_deg),
+    ]
+    limits = joint_limits_rad()
+    posture = np.array(posture_rad, dtype=np.float64)
+    for finger in CURLED_FINGERS:
+        curled = rng.uniform() < config.curl_finger_probability
+        jitter = config.posture_jitter_deg * rng.standard_normal(3)
+        if not curled:
+            continue
+        for joint, angle, extra in zip(("mcp", "pip", "dip"), angles, jitter, strict=True):
+            index = JOINT_NAMES.index(f"{finger}_{joint}_flex")
+            posture[index] = np.clip(np.radians(angle + extra), *limits[index])
+    return posture
+
+
+def sample_palm_direction(cone_deg: float, rng: np.random.Generator) -> NDArray[np.float64]:
+    """Unit direction ``(3,)`` from the hand to the camera, seen from the palm side.
+
+    Uniform over the cap within ``cone_deg`` of the palm normal (hand frame -z).
+    """
+    cos_theta = rng.uniform(np.cos(np.radians(cone_deg)), 1.0)
+    sin_theta = np.sqrt(max(0.0, 1.0 - cos_theta**2))
+    phi = rng.uniform(0.0, 2 * np.pi)
+    return np.array([sin_theta * np.cos(phi), sin_theta * np.sin(phi), -cos_theta])
+
+
 def sample_direction(
     facing_fraction: float, facing_cone_deg: float, rng: np.random.Generator
 ) -> NDArray[np.float64]:
@@ -280,10 +361,17 @@ def sample_scene(
     rng: np.random.Generator,
 ) -> Scene:
     """Draw one scene (posture, pose, size, background, sensor, side) from ``config``."""
+    # No draw at curl_fraction 0, so that older configs render the same scenes.
+    curled = config.curl_fraction > 0 and rng.uniform() < config.curl_fraction
     posture = sample_posture(named, config.posture_mix, config.posture_jitter_deg, rng)
+    if curled:
+        posture = curl_fingers(posture, config, rng)
     length = rng.uniform(*config.hand_length_range_m)
     distance = rng.uniform(*config.distance_range_m)
-    direction = sample_direction(config.facing_fraction, config.facing_cone_deg, rng)
+    if curled and rng.uniform() < config.curl_palm_fraction:
+        direction = sample_palm_direction(config.facing_cone_deg, rng)
+    else:
+        direction = sample_direction(config.facing_fraction, config.facing_cone_deg, rng)
     roll = np.radians(rng.uniform(-config.roll_range_deg, config.roll_range_deg))
     centre_hand = np.array(HAND_CENTRE) * length
     rotation, translation = pose_for_view(direction, distance, target_m=centre_hand, roll_rad=roll)

@@ -11,6 +11,7 @@ from builder.fingertip_data import (
     FingertipDataConfig,
     FingertipExample,
     Scene,
+    curl_fingers,
     forearm_depth,
     generate_examples,
     load_data_config,
@@ -19,7 +20,7 @@ from builder.fingertip_data import (
     visible_tips,
     write_annotated_folder,
 )
-from glovedb.hand_model import FINGERTIP_KEYPOINTS
+from glovedb.hand_model import FINGERTIP_KEYPOINTS, JOINT_NAMES
 from tracker.fingertips.evaluation import read_annotated_depth
 from tracker.fingertips.features import project
 
@@ -43,6 +44,49 @@ def test_visible_tips_known_cases() -> None:
     assert out.dtype == np.float64
     np.testing.assert_array_equal(np.isnan(out[:, 0]), [False, True, False, True, True])
     np.testing.assert_array_equal(out[0], tips[0])
+
+
+def test_curl_fingers_within_ranges() -> None:
+    config = replace(
+        CLEAN, posture_jitter_deg=0.0, curl_mcp_range_deg=(20.0, 60.0),
+        curl_pip_range_deg=(90.0, 110.0), curl_dip_range_deg=(50.0, 80.0),
+    )  # fmt: skip
+    rng = np.random.default_rng(0)
+    base = np.radians(np.arange(20.0))  # small angles, all within the limits
+    for _ in range(20):
+        posture = np.degrees(curl_fingers(base, config, rng))
+        for finger in ("index", "middle", "ring", "little"):
+            mcp, pip, dip = (
+                posture[JOINT_NAMES.index(f"{finger}_{joint}_flex")]
+                for joint in ("mcp", "pip", "dip")
+            )
+            assert 20 <= mcp <= 60 and 90 <= pip <= 110 and 50 <= dip <= 80
+            abduction = JOINT_NAMES.index(f"{finger}_mcp_abd")
+            assert posture[abduction] == pytest.approx(abduction)
+        np.testing.assert_allclose(posture[:4], np.arange(4.0))  # the thumb is kept
+    untouched = curl_fingers(base, replace(config, curl_finger_probability=0.0), rng)
+    np.testing.assert_array_equal(untouched, base)
+
+
+def test_curled_scenes_face_the_palm_and_are_deterministic() -> None:
+    named = [np.zeros(20)]
+    config = replace(CLEAN, curl_fraction=1.0, curl_palm_fraction=1.0, posture_jitter_deg=0.0)
+    cos_cone = np.cos(np.radians(config.facing_cone_deg))
+    first = [sample_scene(config, named, np.random.default_rng(k)) for k in range(10)]
+    again = [sample_scene(config, named, np.random.default_rng(k)) for k in range(10)]
+    for scene, same in zip(first, again, strict=True):
+        np.testing.assert_array_equal(scene.posture_rad, same.posture_rad)
+        np.testing.assert_array_equal(scene.rotation, same.rotation)
+        # The camera looks along its +z; the palm normal (hand -z) points back at it.
+        assert scene.rotation[2, 2] >= cos_cone - 1e-9
+        pip = np.degrees(scene.posture_rad[JOINT_NAMES.index("index_pip_flex")])
+        low, high = config.curl_pip_range_deg
+        assert low <= pip <= high
+    # At curl_fraction 0 the curl settings draw nothing: the scenes are the old ones.
+    plain = replace(CLEAN, curl_pip_range_deg=(0.0, 1.0), curl_palm_fraction=0.0)
+    a = sample_scene(CLEAN, named, np.random.default_rng(5))
+    b = sample_scene(plain, named, np.random.default_rng(5))
+    np.testing.assert_array_equal(a.rotation, b.rotation)
 
 
 def test_mirroring_maps_points_to_mirrored_pixels() -> None:
@@ -90,6 +134,10 @@ def test_config_checks_and_toml(tmp_path: Path) -> None:
         FingertipDataConfig(noise=("kinect_v7",))
     with pytest.raises(ValueError, match="distance_range_m"):
         FingertipDataConfig(distance_range_m=(1.0, 0.5))
+    with pytest.raises(ValueError, match="curl_fraction"):
+        FingertipDataConfig(curl_fraction=1.5)
+    with pytest.raises(ValueError, match="curl_pip_range_deg"):
+        FingertipDataConfig(curl_pip_range_deg=(100.0, 90.0))
     path = tmp_path / "data.toml"
     path.write_text('[data]\nn_images = 7\nnoise = ["none"]\n')
     assert load_data_config(path) == FingertipDataConfig(n_images=7, noise=("none",))
