@@ -310,7 +310,8 @@ class PoseGuessMetrics:
     within_15deg : float
         Share of the guessed frames with a rotation error below 15 degrees.
     ms_per_guess : float
-        Mean wall-clock time of the guess (detection not included).
+        Mean wall-clock time of a guess, over the guessed frames (detection not
+        included).
     """
 
     frames: int
@@ -379,9 +380,9 @@ def evaluate_pose_guesses(
         guess = detector.guess_pose(
             detections, depth, sequence.intrinsics, posture_rad=posture_rad, skeleton=skeleton
         )
-        elapsed += time.perf_counter() - started
         if guess is None:
             continue
+        elapsed += time.perf_counter() - started
         keypoints = np.asarray(record["keypoints_3d_m"], dtype=np.float64)
         rows.append(
             (
@@ -399,5 +400,5 @@ def evaluate_pose_guesses(
         wrist_mm_median=float(median[1]),
         keypoint_mm_median=float(median[2]),
         within_15deg=_safe_ratio(float(np.sum(errors[:, 0] < 15.0)), len(rows)),
-        ms_per_guess=1000.0 * elapsed / max(len(usable), 1),
+        ms_per_guess=1000.0 * elapsed / max(len(rows), 1),
     )
