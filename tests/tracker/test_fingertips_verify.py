@@ -14,7 +14,7 @@ from builder.fingertip_verifier import (
     fit_verifier,
     label_peaks,
 )
-from tracker.fingertips import DetectorConfig, detect_fingertips
+from tracker.fingertips import Detection, DetectorConfig, detect_fingertips, name_fingers
 from tracker.fingertips.detect import candidate_peaks
 from tracker.fingertips.forest import load_forest, save_forest
 from tracker.fingertips.verify import (
@@ -175,3 +175,16 @@ def test_candidate_features_describe_the_bar_tip() -> None:
     assert row[COLUMN["ring45_hand_arc"]] <= 4 / RING_PROBES
     assert DetectorConfig().min_tip_probability == 0.0
     np.testing.assert_allclose(peaks.positions_m[0], tip_m, atol=0.0015)
+
+
+def test_verified_detections_are_weighed_by_tip_probability_in_eq_11() -> None:
+    tips = np.array([[0.1, 0, 0.5], [0.0, 0, 0.5], [0.03, 0, 0.5], [0.06, 0, 0.5], [0.09, 0, 0.5]])
+    near = Detection(0, 0, 0.005, 0.0, 0.5, confidence=5.0, tip_probability=0.9)
+    far = Detection(0, 0, 0.03, 0.03, 0.5, confidence=5.0, tip_probability=0.76)
+    # Verified: leaving `far` out costs 1.2 * 0.76 / 0.75 + a missed middle finger 1.2,
+    # less than its 3 cm to the middle tip.
+    verified = name_fingers((near, far), tips, c_thr=0.5, min_tip_probability=0.75)
+    assert [d.finger for d in verified] == ["index", None]
+    # By vote weight over a candidate threshold of 0.5 every detection is costly to drop.
+    by_weight = name_fingers((near, far), tips, c_thr=0.5)
+    assert [d.finger for d in by_weight] == ["index", "middle"]
