@@ -96,7 +96,9 @@ def class_tree(points_m: NDArray[np.float64], labels: NDArray[np.integer]) -> cK
 
 
 def rigid_fit(
-    source: NDArray[np.float64], target: NDArray[np.float64]
+    source: NDArray[np.float64],
+    target: NDArray[np.float64],
+    weights: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Least-squares rotation and translation with ``target ~ R @ source + t``.
 
@@ -104,6 +106,8 @@ def rigid_fit(
     ----------
     source, target : (N, 3) float
         Paired points, N >= 3 not all on a line.
+    weights : (N,) float, optional
+        Non-negative weight of each pair (default: all equal).
 
     Returns
     -------
@@ -112,8 +116,9 @@ def rigid_fit(
     """
     source = as_array("source", source, (None, 3), np.float64)
     target = as_array("target", target, (len(source), 3), np.float64)
-    source_mean, target_mean = source.mean(axis=0), target.mean(axis=0)
-    covariance = (target - target_mean).T @ (source - source_mean)
+    w = np.full(len(source), 1.0 / len(source)) if weights is None else weights / weights.sum()
+    source_mean, target_mean = w @ source, w @ target
+    covariance = ((target - target_mean) * w[:, None]).T @ (source - source_mean)
     u, _, vt = np.linalg.svd(covariance)
     reflection = np.sign(np.linalg.det(u @ vt))
     rotation = u @ np.diag([1.0, 1.0, reflection]) @ vt

@@ -98,6 +98,14 @@ def test_rigid_fit_recovers_a_transform():
     fitted_rotation, fitted_translation = rigid_fit(points, points @ rotation.T + [0.1, -0.2, 0.5])
     np.testing.assert_allclose(fitted_rotation, rotation, atol=1e-12)
     np.testing.assert_allclose(fitted_translation, [0.1, -0.2, 0.5], atol=1e-12)
+    # A pair of weight zero does not count, however wrong it is.
+    target = points @ rotation.T + [0.1, -0.2, 0.5]
+    target[0] += 10.0
+    weights = np.ones(len(points))
+    weights[0] = 0.0
+    fitted_rotation, fitted_translation = rigid_fit(points, target, weights)
+    np.testing.assert_allclose(fitted_rotation, rotation, atol=1e-12)
+    np.testing.assert_allclose(fitted_translation, [0.1, -0.2, 0.5], atol=1e-12)
 
 
 @pytest.mark.gl

@@ -1,18 +1,19 @@
 """A hand pose guess from fingertip detections, to (re)initialise a tracker.
 
-Given the 3D fingertip detections of one frame and a posture to assume (the open hand
-by default, or a tracker's last posture), :func:`guess_hand_pose` finds the rigid
-pose of the hand model that puts its fingertips on the detections. Which detection is
-which finger is not known, so every assignment of at least ``min_matched``
-detections to distinct fingers is tried (at most 3,720 for six detections), each
-solved in closed form (Kabsch) and scored like Eq. 11 of Tzionas et al. (2014):
-squared residuals, plus a cost for every detection left out and every finger without
-a detection. Three fingertips fit a mirrored hand about as well as the right one, so
-when the hand's depth points are given, the best assignments are re-scored by how
-well the posed hand's capsules (:mod:`glovedb.capsules`) cover those points.
+Given the 3D fingertip detections of one frame and one or more postures to choose
+from (e.g. a tracker's last posture, or the named postures), :func:`guess_hand_pose`
+finds the posture and rigid pose of the hand model that put its fingertips on the
+detections. Which detection is which finger is not known, so every assignment of at
+least ``min_matched`` detections to distinct fingers is tried (at most 3,720 for six
+detections, per posture), each solved in closed form (Kabsch) and scored like Eq. 11
+of Tzionas et al. (2014): squared residuals, plus a cost for every detection left out
+and every finger without a detection. Three fingertips fit a mirrored hand about as
+well as the right one, so when the hand's depth points are given, the best
+assignments are re-scored by how well the posed hand's capsules
+(:mod:`glovedb.capsules`) cover those points, and the winner is aligned to them.
 
 The result uses the conventions of ``poses.jsonl`` (``p_cam = R @ p_hand + t``), so
-another tracker can start from it directly; our own tracker uses it the same way.
+another tracker can start from it directly.
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ from tracker.fingertips.features import (
     mask_depth_range,
     nearest_band,
 )
+from tracker.icp import rigid_fit
 
 _PALM_HALF_THICKNESS = 0.06
 """Half thickness of the palm capsules, in hand lengths (11 mm for a 0.19 m hand)."""
@@ -68,7 +70,7 @@ class PoseGuess:
     translation_m : (3,) float64
         Wrist position in the camera frame, metres.
     posture_rad : (20,) float64
-        The posture that was assumed.
+        The posture chosen among those offered.
     keypoints_3d_m : (21, 3) float64
         The posed model's keypoints in the camera frame, metres.
     fingers : tuple of (str or None)
@@ -158,7 +160,7 @@ def _align_with_points(
         weights = np.concatenate(
             [np.ones(len(model_tips)), np.full(near.sum(), len(FINGER_NAMES) / max(near.sum(), 1))]
         )
-        rotation, translation = weighted_rigid_fit(
+        rotation, translation = rigid_fit(
             np.vstack([model_tips, surface[near]]), np.vstack([detections, cloud[near]]), weights
         )
     local = (cloud - translation) @ rotation
@@ -212,19 +214,6 @@ def batch_rigid_fit(
     u[:, :, 2] *= flip[:, None]
     rotation = u @ vt
     return rotation, target_mean - np.einsum("hij,hj->hi", rotation, source_mean)
-
-
-def weighted_rigid_fit(
-    source: NDArray[np.float64], target: NDArray[np.float64], weights: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Weighted least-squares ``target ~ R @ source + t`` for ``(N, 3)`` pairs, ``(N,)`` weights."""
-    w = weights / weights.sum()
-    source_mean, target_mean = w @ source, w @ target
-    covariance = ((target - target_mean) * w[:, None]).T @ (source - source_mean)
-    u, _, vt = np.linalg.svd(covariance)
-    u[:, 2] *= np.sign(np.linalg.det(u @ vt))
-    rotation = u @ vt
-    return rotation, target_mean - rotation @ source_mean
 
 
 def closest_capsule_points(
