@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -131,22 +130,21 @@ class FingertipDetector:
         detections are named by Eq. 11 against the fitted model's fingertips.
         """
         detections = self.detect(depth_m, intrinsics)
-        record: dict[str, Any] = {"frame": int(frame)}
-        if pose_guess:
-            guess = self.guess_pose(detections, depth_m, intrinsics, posture_rad=posture_rad)
-            if guess is not None:
-                tips = guess.keypoints_3d_m[list(FINGERTIP_KEYPOINTS)]
-                detections = name_fingers(
-                    detections,
-                    tips,
-                    c_thr=self.config.c_thr,
-                    min_tip_probability=self.config.min_tip_probability,
-                )
-            record["fingertips"] = fingertips_output(detections)
-            record["pose_guess"] = pose_guess_output(guess)
-        else:
-            record["fingertips"] = fingertips_output(detections)
-        return record
+        if not pose_guess:
+            return {"frame": int(frame), "fingertips": fingertips_output(detections)}
+        guess = self.guess_pose(detections, depth_m, intrinsics, posture_rad=posture_rad)
+        if guess is not None:
+            detections = name_fingers(
+                detections,
+                guess.keypoints_3d_m[list(FINGERTIP_KEYPOINTS)],
+                c_thr=self.config.c_thr,
+                min_tip_probability=self.config.min_tip_probability,
+            )
+        return {
+            "frame": int(frame),
+            "fingertips": fingertips_output(detections),
+            "pose_guess": pose_guess_output(guess),
+        }
 
     def _named_postures(self) -> NDArray[np.float64]:
         if self._postures is None:
@@ -154,10 +152,6 @@ class FingertipDetector:
 
             self._postures = np.stack(list(load_named_postures().values()))
         return self._postures
-
-    def with_settings(self, **changes: Any) -> FingertipDetector:
-        """A detector with the same model and some settings changed (e.g. ``c_thr``)."""
-        return FingertipDetector(self.model, config=replace(self.config, **changes))
 
     def run(self, folder: str | os.PathLike[str], *, pose_guess: bool = False) -> Iterator[dict]:
         """The records of every depth frame of an RGB-D folder, in frame order."""
