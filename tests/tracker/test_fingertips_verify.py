@@ -16,6 +16,7 @@ from builder.fingertip_verifier import (
 )
 from tracker.fingertips import Detection, DetectorConfig, detect_fingertips, name_fingers
 from tracker.fingertips.detect import candidate_peaks
+from tracker.fingertips.features import probe_image
 from tracker.fingertips.forest import load_forest, save_forest
 from tracker.fingertips.verify import (
     PEAK_FEATURES,
@@ -46,8 +47,8 @@ def _constant_verifier(probability: float) -> PeakVerifier:
 def test_ring_features_tell_a_fingertip_from_a_flat_surface() -> None:
     depth, tip_m = bar_scene()  # a 6-pixel (12 mm) wide bar ending at tip_m
     plate = np.full_like(depth, Z_M)
-    rings = ring_features(depth, tip_m[None], CAMERA)[0].reshape(-1, 3)
-    flat = ring_features(plate, tip_m[None], CAMERA)[0].reshape(-1, 3)
+    rings = ring_features(probe_image(depth), tip_m[None], CAMERA)[0].reshape(-1, 3)
+    flat = ring_features(probe_image(plate), tip_m[None], CAMERA)[0].reshape(-1, 3)
     np.testing.assert_allclose(flat, [[0.0, 1.0, 0.0]] * len(flat), atol=1e-6)
     # At the end of the bar only the probes pointing down it are on the hand: within
     # asin(6 mm / r) of straight down, 3 of 16 at 1 cm and 1 of 16 at 2 cm.
@@ -55,7 +56,9 @@ def test_ring_features_tell_a_fingertip_from_a_flat_surface() -> None:
     np.testing.assert_allclose(rings[:2], expected, atol=1e-6)
     # Missing depth and far surfaces are background alike.
     far = np.where(depth > 0, depth, np.float32(Z_M + 0.5))
-    np.testing.assert_allclose(ring_features(far, tip_m[None], CAMERA), rings[None].reshape(1, -1))
+    np.testing.assert_allclose(
+        ring_features(probe_image(far), tip_m[None], CAMERA), rings[None].reshape(1, -1)
+    )
 
 
 def test_ring_features_do_not_depend_on_distance() -> None:
@@ -65,8 +68,8 @@ def test_ring_features_do_not_depend_on_distance() -> None:
     double = np.array([2 * INTRINSICS[0], 2 * INTRINSICS[1], INTRINSICS[2], INTRINSICS[3]])
     tip_far = tip_m + [0.0, 0.0, Z_M]
     np.testing.assert_allclose(
-        ring_features(farther, tip_far[None], double),
-        ring_features(depth, tip_m[None], CAMERA),
+        ring_features(probe_image(farther), tip_far[None], double),
+        ring_features(probe_image(depth), tip_m[None], CAMERA),
         atol=1e-6,
     )
 
@@ -80,7 +83,7 @@ def test_vote_features_have_known_values() -> None:
     votes = Votes(positions.astype("f4"), weights, probability, sources.astype("f4"))
     peaks = Peaks(np.array([peak], np.float32), np.array([4.0], np.float32))
     depth = np.zeros((80, 80), np.float32)
-    row = peak_features(peaks, votes, depth, CAMERA, bandwidth_m=0.01)[0]
+    row = peak_features(peaks, votes, probe_image(depth), CAMERA, bandwidth_m=0.01)[0]
     assert row[COLUMN["confidence"]] == pytest.approx(4.0)
     assert row[COLUMN["n_votes"]] == 3
     assert row[COLUMN["max_probability"]] == pytest.approx(0.9)

@@ -18,10 +18,11 @@ from tracker.fingertips.features import (
     intrinsics_array,
     mask_depth_range,
     nearest_band,
+    probe_image,
     project,
     stride_for_spacing,
 )
-from tracker.fingertips.forest import FingertipForest, apply_depth, predict_leaves
+from tracker.fingertips.forest import FingertipForest, apply_probe_image, predict_leaves
 from tracker.fingertips.verify import peak_features, verify_peaks
 from tracker.fingertips.voting import (
     DEFAULT_VOTING,
@@ -211,7 +212,8 @@ def _frame_votes(
     model: FingertipForest,
     config: DetectorConfig,
 ) -> tuple[Votes, NDArray[np.float32]]:
-    """The votes of :func:`fingertip_votes` and the hand depth they come from."""
+    """The votes of :func:`fingertip_votes` and the probe image of the hand depth they
+    come from (:func:`~tracker.fingertips.features.probe_image`, made once per frame)."""
     depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
     masked = hand_depth(depth, model, depth_band_m=config.depth_band_m)
     stride = config.stride
@@ -221,14 +223,15 @@ def _frame_votes(
         n_foreground = int(np.count_nonzero(masked))
         stride = max(stride, math.ceil(math.sqrt(n_foreground / config.max_pixels)))
     pixels = foreground_pixels(masked, stride=stride)
-    prediction = predict_leaves(model, apply_depth(model, masked, pixels, camera))
+    probes = probe_image(masked)
+    prediction = predict_leaves(model, apply_probe_image(model, probes, pixels, camera))
     z = masked[pixels[:, 1], pixels[:, 0]]
     points = backproject(pixels, z, camera)
     area = (stride * z) ** 2 / np.float32(camera[0] * camera[1])
     votes = cast_votes(
         points, prediction.probability, prediction.offset_m, area, config=config.voting
     )
-    return votes, masked
+    return votes, probes
 
 
 def candidate_peaks(
@@ -257,9 +260,9 @@ def candidate_peaks(
         :func:`tracker.fingertips.verify.peak_features` of the peaks.
     """
     camera = intrinsics_array(intrinsics)
-    votes, masked = _frame_votes(depth_m, camera, model, config)
+    votes, probes = _frame_votes(depth_m, camera, model, config)
     peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
-    features = peak_features(peaks, votes, masked, camera, bandwidth_m=config.voting.bandwidth_m)
+    features = peak_features(peaks, votes, probes, camera, bandwidth_m=config.voting.bandwidth_m)
     return peaks, features
 
 

@@ -82,6 +82,7 @@ __all__ = [
     "ForestPrediction",
     "apply_depth",
     "apply_features",
+    "apply_probe_image",
     "descend",
     "load_forest",
     "predict_leaves",
@@ -280,14 +281,27 @@ def apply_depth(
     leaves : (N, T) int32
     """
     depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
+    return apply_probe_image(forest, probe_image(depth), pixels_uv, intrinsics)
+
+
+def apply_probe_image(
+    forest: FingertipForest,
+    probes_m: NDArray[np.float32],
+    pixels_uv: ArrayLike,
+    intrinsics: ArrayLike,
+) -> NDArray[np.int32]:
+    """:func:`apply_depth` on the depth's :func:`~tracker.fingertips.features.probe_image`.
+
+    For callers that probe the same image again (the peak verifier), so that it is
+    made once per frame.
+    """
     pixels = as_array("pixels_uv", pixels_uv, (None, 2), np.int32, kind="iu")
     fx, fy, _, _ = intrinsics_array(intrinsics)
-    padded = probe_image(depth)
-    reference = read_probes(padded, pixels[:, 0], pixels[:, 1])
+    reference = read_probes(probes_m, pixels[:, 0], pixels[:, 1])
 
     def lookup(rows: NDArray[np.intp], feature: NDArray[np.int32]) -> NDArray[np.float32]:
         return paired_feature_values(
-            padded, pixels[rows], reference[rows], forest.offsets_m[feature], (fx, fy)
+            probes_m, pixels[rows], reference[rows], forest.offsets_m[feature], (fx, fy)
         )
 
     return descend(forest, pixels.shape[0], lookup)

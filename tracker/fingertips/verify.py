@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from glovedb._validate import as_array
-from tracker.fingertips.features import intrinsics_array, probe_image, project, read_probes
+from tracker.fingertips.features import intrinsics_array, project, read_probes
 from tracker.fingertips.trees import check_tree_table, descend
 from tracker.fingertips.voting import Peaks, Votes
 
@@ -92,7 +92,7 @@ def _longest_circular_run(flags: NDArray[np.bool_]) -> NDArray[np.int64]:
 
 
 def ring_features(
-    hand_depth_m: NDArray[np.float32],
+    probes_m: NDArray[np.float32],
     peaks_m: NDArray[np.float64],
     intrinsics: NDArray[np.float64],
 ) -> NDArray[np.float64]:
@@ -100,8 +100,9 @@ def ring_features(
 
     Parameters
     ----------
-    hand_depth_m : (H, W) float32
-        Hand depth in metres, 0 where missing or not the hand.
+    probes_m : (H + 2, W + 2) float32
+        :func:`~tracker.fingertips.features.probe_image` of the hand depth (metres,
+        0 where missing or not the hand).
     peaks_m : (K, 3) float64
         Peak positions, camera frame, metres.
     intrinsics : (4,) float64
@@ -114,7 +115,6 @@ def ring_features(
         clipped to ``[-0.05, RING_BACKGROUND_M]``; ``RING_BACKGROUND_M`` without any).
     """
     fx, fy, _, _ = intrinsics
-    padded = probe_image(hand_depth_m)
     uv = np.rint(project(peaks_m, intrinsics)).astype(np.int64)
     angles = np.linspace(0.0, 2.0 * np.pi, RING_PROBES, endpoint=False)
     radii = np.asarray(RING_RADII_M)
@@ -122,7 +122,7 @@ def ring_features(
     # (K, R, P) probe pixels and depth differences.
     du = np.rint(radii[None, :, None] * np.cos(angles) * fx / z[:, None, None]).astype(np.int64)
     dv = np.rint(radii[None, :, None] * np.sin(angles) * fy / z[:, None, None]).astype(np.int64)
-    values = read_probes(padded, uv[:, 0, None, None] + du, uv[:, 1, None, None] + dv)
+    values = read_probes(probes_m, uv[:, 0, None, None] + du, uv[:, 1, None, None] + dv)
     difference = values.astype(np.float64) - z[:, None, None]
     hand = difference <= RING_BACKGROUND_M
     n_hand = hand.sum(axis=2)
@@ -142,7 +142,7 @@ def ring_features(
 def peak_features(
     peaks: Peaks,
     votes: Votes,
-    hand_depth_m: ArrayLike,
+    probes_m: ArrayLike,
     intrinsics: ArrayLike,
     *,
     bandwidth_m: float,
@@ -154,8 +154,9 @@ def peak_features(
     peaks : Peaks
         From :func:`tracker.fingertips.voting.find_peaks` on ``votes``, strongest first.
     votes : Votes
-    hand_depth_m : (H, W) float32
-        The hand depth the votes were cast from (metres, 0 where not the hand).
+    probes_m : (H + 2, W + 2) float32
+        :func:`~tracker.fingertips.features.probe_image` of the hand depth the votes
+        were cast from (the forest probed the same image).
     intrinsics : (4,) float
         ``(fx, fy, cx, cy)`` in pixels.
     bandwidth_m : float
@@ -165,7 +166,7 @@ def peak_features(
     -------
     (K, len(PEAK_FEATURES)) float32
     """
-    depth = as_array("hand_depth_m", hand_depth_m, (None, None), np.float32, kind="fiu")
+    probes = as_array("probes_m", probes_m, (None, None), np.float32, kind="f")
     camera = intrinsics_array(intrinsics)
     centres = peaks.positions_m.astype(np.float64)
     k = centres.shape[0]
@@ -194,9 +195,8 @@ def peak_features(
         / safe[:, None]
     )
     voter_offset = voter_centroid - centres
-    padded = probe_image(depth)
     uv = np.rint(project(centres, camera)).astype(np.int64)
-    surface = read_probes(padded, uv[:, 0], uv[:, 1]).astype(np.float64)
+    surface = read_probes(probes, uv[:, 0], uv[:, 1]).astype(np.float64)
     separation = np.linalg.norm(centres[:, None] - centres[None], axis=2)
     np.fill_diagonal(separation, np.inf)
     columns = [
@@ -215,7 +215,7 @@ def peak_features(
         1000.0 * voter_offset[:, 2],
     ]
     features = np.concatenate(
-        [np.stack(columns, axis=1), ring_features(depth, centres, camera)], axis=1
+        [np.stack(columns, axis=1), ring_features(probes, centres, camera)], axis=1
     )
     return features.astype(np.float32)
 
