@@ -313,9 +313,6 @@ class PostureRenderer:
             label_images, plan.config.images.sizes, rolls_rad=plan.roll_rad
         )
 
-    def close(self) -> None:
-        """Nothing to release (kept so that renderers of any kind close alike)."""
-
 
 # Shards ----------------------------------------------------------------------------
 
@@ -519,14 +516,11 @@ def _render_shards(plan: BuildPlan, parts: Path, pending: list[int], workers: in
         return
     if workers == 1:
         renderer = PostureRenderer(plan)
-        try:
-            for index in pending:
-                with single_threaded_blas():
-                    images = renderer.tiny_images(index)
-                write_shard(parts, index, images)
-                yield index
-        finally:
-            renderer.close()
+        for index in pending:
+            with single_threaded_blas():
+                images = renderer.tiny_images(index)
+            write_shard(parts, index, images)
+            yield index
         return
     context = multiprocessing.get_context("spawn")
     arguments = (plan, str(parts))

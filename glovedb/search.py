@@ -449,6 +449,7 @@ def _scan(
         maps = as_array("query_maps", query_maps, (NUM_CLASSES, size, size), np.float32)
         table = _lookup_table(maps, rows.group)
         codes, glove_pixels = rows.codes, rows.glove_pixels
+        num_rows = len(codes)
 
         def score(start_stop: tuple[int, int]) -> None:
             _search_kernels.score_rows(codes, glove_pixels, table, *start_stop, errors)
@@ -456,13 +457,14 @@ def _scan(
     else:
         size = math.isqrt(rows.shape[1])
         maps = as_array("query_maps", query_maps, (NUM_CLASSES, size, size), np.float32)
-        lookup = np.concatenate([np.zeros((1, size * size), np.float32), maps.reshape(10, -1)])
+        background = np.zeros((1, size * size), np.float32)
+        lookup = np.concatenate([background, maps.reshape(NUM_CLASSES, -1)])
         labels = rows
+        num_rows = len(labels)
 
         def score(start_stop: tuple[int, int]) -> None:
             _search_kernels.score_label_rows(labels, lookup, *start_stop, errors)
 
-    num_rows = len(rows.codes) if isinstance(rows, PackedTinyImages) else len(rows)
     # A few chunks per thread balance the load when another process takes a core.
     num_chunks = max(1, min(4 * workers, num_rows // _MIN_ROWS_PER_CHUNK))
     bounds = np.linspace(0, num_rows, num_chunks + 1)

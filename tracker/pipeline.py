@@ -248,7 +248,7 @@ class Tracker(Closing):
         or compiles them on first use)."""
         square = np.stack(np.meshgrid(np.arange(8.0), np.arange(8.0)), -1).reshape(-1, 2)
         stacks = tiny_images_from_pixels(square, np.ones(len(square), np.uint8), self._sizes)
-        self.index.search({size: stack[0] for size, stack in stacks.items()}, self.cascade)
+        self.index.search({size: stack[0] for size, stack in stacks.items()}, self._search_cascade)
         vertex_normals(self.mesh.rest_vertices_m, self.mesh.faces)
 
     def track(self, frame: Frame) -> TrackingResult:

@@ -43,11 +43,7 @@ def test_round_trip(small_database):
         np.testing.assert_allclose(
             database.entry_rotations[36:], plan.view_rotations.astype(np.float32)
         )
-        renderer = PostureRenderer(plan)
-        try:
-            expected = renderer.tiny_images(1)
-        finally:
-            renderer.close()
+        expected = PostureRenderer(plan).tiny_images(1)
         for size in (8, 16, 32):
             images = database.images(size)
             assert images.dtype == np.uint8 and images.shape == (72, size, size)
@@ -126,24 +122,21 @@ def test_rolling_pixels_equals_rendering_a_rolled_camera():
     """In-plane rotations are made from one render: equivalent up to aliasing."""
     plan = make_plan(load_config(config_path("db/open_pinch_power.toml")))
     renderer = PostureRenderer(plan)
-    try:
-        rolled = renderer.tiny_images(2)  # views: position-major, 18 rolls each
-        posture = plan.postures_rad[2]
-        for view in (1, 9, 16, 18 * 7 + 5, 18 * 30 + 11):
-            rendered = renderer.label_images(
-                posture,
-                plan.view_rotations[view : view + 1],
-                plan.view_translations_m[view : view + 1],
-            )[0]
-            direct = tiny_images(rendered)
-            for size in (8, 16, 32, 64):
-                # Aliasing moves silhouettes and patch borders by under a pixel: the
-                # mean distance to the same color in the other image stays below one.
-                distance = float(symmetric_distance(direct[size], rolled[size][view]))
-                assert distance < 0.75, f"view {view} size {size}: {distance:.2f} px apart"
-                assert np.mean(direct[size] != rolled[size][view]) < 0.1
-    finally:
-        renderer.close()
+    rolled = renderer.tiny_images(2)  # views: position-major, 18 rolls each
+    posture = plan.postures_rad[2]
+    for view in (1, 9, 16, 18 * 7 + 5, 18 * 30 + 11):
+        rendered = renderer.label_images(
+            posture,
+            plan.view_rotations[view : view + 1],
+            plan.view_translations_m[view : view + 1],
+        )[0]
+        direct = tiny_images(rendered)
+        for size in (8, 16, 32, 64):
+            # Aliasing moves silhouettes and patch borders by under a pixel: the
+            # mean distance to the same color in the other image stays below one.
+            distance = float(symmetric_distance(direct[size], rolled[size][view]))
+            assert distance < 0.75, f"view {view} size {size}: {distance:.2f} px apart"
+            assert np.mean(direct[size] != rolled[size][view]) < 0.1
 
 
 def test_the_cached_mesh_equals_a_fresh_one(tmp_path, monkeypatch):
