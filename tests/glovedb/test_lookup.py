@@ -41,6 +41,15 @@ def test_tiling_repeats_entries_and_maps_rows_back(small_database):
         assert index.packed(8).num_entries == 200
 
 
+def test_rows_read_from_the_file_equal_the_stored_images(small_database):
+    with GloveDatabase(small_database) as database:
+        stored = database.images(32)
+    ids = np.array([71, 3, 3, 40, 0])  # any order, repeats allowed
+    with DatabaseIndex(small_database) as index:
+        np.testing.assert_array_equal(index.rows(32, ids), stored[ids])
+        assert index.rows(32, np.array([], np.int64)).shape == (0, 32, 32)
+
+
 def test_bad_cascades_are_rejected(small_database):
     with DatabaseIndex(small_database) as index:
         query = {size: np.ones((size, size), np.uint8) for size in (8, 16, 32)}
