@@ -93,6 +93,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also score hand pose guesses against groundtruth.jsonl poses (rendered folders)",
     )
+    evaluate.add_argument(
+        "--sheet",
+        metavar="PNG",
+        help=f"also draw a contact sheet of up to {SHEET_FRAMES} frames (evenly spread): "
+        "annotated tips green if a detection is within 10 px, red if missed; detections "
+        "cyan if matched, orange if not",
+    )
     evaluate.add_argument("--json", action="store_true", help="print one JSON object")
     evaluate.set_defaults(run=run_eval)
 
@@ -227,9 +234,15 @@ def run_detect(args: argparse.Namespace) -> int:
 
 
 def run_eval(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     from tqdm import tqdm
 
-    from tracker.fingertips.evaluation import evaluate_detector, read_annotated_depth
+    from tracker.fingertips.evaluation import (
+        fingertip_metrics,
+        read_annotated_depth,
+        run_detector,
+    )
 
     root = Path(args.input)
     name = args.annotations
@@ -239,9 +252,16 @@ def run_eval(args: argparse.Namespace) -> int:
         )
     if args.pose_guess and not (root / "groundtruth.jsonl").is_file():
         raise ValueError(f"{root}: pose guesses need groundtruth.jsonl (a rendered folder)")
+    if args.sheet and Path(args.sheet).suffix.lower() not in (".png", ".jpg", ".jpeg"):
+        raise ValueError(f"--sheet: expected a .png (or .jpg) file name, got {args.sheet}")
     model, config = _load_model(args)
     data = read_annotated_depth(root, annotations=name)
-    metrics = evaluate_detector(data, model, config=config, progress=tqdm)
+    detections, ms_per_frame = run_detector(data, model, config=config, progress=tqdm)
+    metrics = fingertip_metrics(detections, data.tips_m, data.tips_px)
+    metrics = replace(metrics, ms_per_frame=ms_per_frame)
+    if args.sheet:
+        _write_scored_sheet(Path(args.sheet), data, detections)
+        print(f"wrote {args.sheet}", file=sys.stderr)
     result = {
         "frames": metrics.frames,
         "detections": metrics.detections,
@@ -296,6 +316,26 @@ def _finite_or_none(value: Any) -> Any:
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
+def depth_picture(depth_m: Any, *, span_m: float | None = None) -> Any:
+    """``(H, W, 3) uint8``: depth in gray, near bright, black where missing.
+
+    The gray ramp runs from the 1st to the 99th depth percentile, or over ``span_m``
+    metres behind the 1st percentile (detail on a hand in front of a far background).
+    """
+    import numpy as np
+
+    valid = depth_m > 0
+    picture = np.zeros(depth_m.shape + (3,), np.uint8)
+    if valid.any():
+        near, far = np.percentile(depth_m[valid], [1, 99])
+        if span_m is not None:
+            far = near + span_m
+        scaled = 1.0 - np.clip((depth_m - near) / max(far - near, 1e-6), 0.0, 1.0)
+        gray = (40 + 200 * scaled).astype(np.uint8)
+        picture[valid] = gray[valid][:, None]
+    return picture
+
+
 def overlay(depth_m: Any, record: dict[str, Any], intrinsics: Any) -> Any:
     """``(H, W, 3) uint8`` RGB: depth in gray (near bright), the detections circled and
     labelled (finger or "?", confidence), and the pose guess's skeleton if there is one.
@@ -305,13 +345,7 @@ def overlay(depth_m: Any, record: dict[str, Any], intrinsics: Any) -> Any:
     from tracker.fingertips.features import project
     from tracker.overlay import draw_fingertips, draw_skeleton
 
-    valid = depth_m > 0
-    picture = np.zeros(depth_m.shape + (3,), np.uint8)
-    if valid.any():
-        near, far = np.percentile(depth_m[valid], [1, 99])
-        scaled = 1.0 - np.clip((depth_m - near) / max(far - near, 1e-6), 0.0, 1.0)
-        gray = (40 + 200 * scaled).astype(np.uint8)
-        picture[valid] = gray[valid][:, None]
+    picture = depth_picture(depth_m)
     guess = record.get("pose_guess")
     if guess is not None:
         keypoints = np.asarray(guess["keypoints_3d_m"], dtype=np.float64)
@@ -330,3 +364,66 @@ def contact_sheet(tiles: list[Any], columns: int = 6) -> Any:
         r, c = divmod(k, columns)
         sheet[r * height : (r + 1) * height, c * width : (c + 1) * width] = tile
     return sheet
+
+
+SHEET_FRAMES = 60
+"""Most frames ``glove fingertips eval --sheet`` draws."""
+SHEET_TILE_WIDTH = 320
+"""Wider frames are scaled down to this width (pixels) on the sheet."""
+
+
+def scored_overlay(depth_m: Any, uv_px: Any, tips_px: Any, *, gate_px: float = 10.0) -> Any:
+    """``(h, w, 3) uint8`` RGB of one scored frame, at most :data:`SHEET_TILE_WIDTH` wide.
+
+    Annotated tips are circles, green when a detection lies within ``gate_px`` (the
+    one-to-one matching of ``recall_at_10px``), red when missed; detections are
+    crosses, cyan when matched, orange when not. The corner reads "found/annotated".
+    """
+    import cv2
+    import numpy as np
+
+    from tracker.fingertips.evaluation import match_frame_2d
+
+    uv = np.asarray(uv_px, dtype=np.float64).reshape(-1, 2)
+    tips = np.asarray(tips_px, dtype=np.float64).reshape(-1, 2)
+    found, matched = match_frame_2d(uv, tips, gate_px=gate_px)
+    picture = depth_picture(depth_m, span_m=0.15)
+    scale = min(1.0, SHEET_TILE_WIDTH / picture.shape[1])
+    if scale < 1.0:
+        size = (round(picture.shape[1] * scale), round(picture.shape[0] * scale))
+        picture = cv2.resize(picture, size, interpolation=cv2.INTER_AREA)
+    radius = max(round(gate_px * scale), 3)
+    annotated = np.all(np.isfinite(tips), axis=1)
+    for tip, hit in zip(tips[annotated] * scale, found[annotated], strict=True):
+        color = (0, 220, 0) if hit else (255, 40, 40)
+        cv2.circle(picture, tuple(round(x) for x in tip.tolist()), radius, color, 1, cv2.LINE_AA)
+    for point, hit in zip(uv * scale, matched, strict=True):
+        color = (0, 230, 255) if hit else (255, 150, 0)
+        centre = tuple(round(x) for x in point.tolist())
+        cv2.drawMarker(picture, centre, color, cv2.MARKER_CROSS, 2 * radius // 3 + 2, 1)
+    label = f"{int(found.sum())}/{int(annotated.sum())}"
+    cv2.putText(picture, label, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 0), 1)
+    return picture
+
+
+def _write_scored_sheet(path: Path, data: Any, detections: list[Any]) -> None:
+    """Draw :func:`scored_overlay` of up to :data:`SHEET_FRAMES` evenly spread frames."""
+    import cv2
+    import numpy as np
+
+    n = len(detections)
+    if n == 0:
+        raise ValueError("--sheet: no annotated frames to draw")
+    chosen = np.unique(np.linspace(0, n - 1, min(n, SHEET_FRAMES)).round().astype(int))
+    tiles = []
+    for k in chosen:
+        uv = [(d.u_px, d.v_px) for d in detections[k]]
+        tile = scored_overlay(data.depth_m[k], uv, data.tips_px[k])
+        label = f"frame {int(data.frames[k])}"
+        cv2.putText(
+            tile, label, (4, tile.shape[0] - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 0), 1
+        )
+        tiles.append(tile)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), contact_sheet(tiles)[..., ::-1]):
+        raise ValueError(f"--sheet: could not write {path}")

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from glove_cli.commands.fingertips import scored_overlay
 from glove_cli.main import main
 from tracker.fingertips.detector import FingertipDetector
 from tracker.fingertips.forest import load_forest
@@ -57,6 +58,7 @@ def run_glove(*args: str) -> subprocess.CompletedProcess:
         (["fingertips", "train", "/no/config.toml", "--out", "m.npz"], "cannot read config"),
         (["fingertips", "eval", ".", "--min-tip-probability", "2"], "expected a probability"),
         (["fingertips", "eval", str(REAL), "--pose-guess"], "need groundtruth.jsonl"),
+        (["fingertips", "eval", ".", "--sheet", "scores.txt"], "expected a .png"),
         (["fingertips", "synth", "x.toml", "--out", "d", "--noise", "loud"], "invalid choice"),
     ],
 )
@@ -96,6 +98,44 @@ def test_detect_writes_a_record_and_an_overlay_per_frame(tmp_path: Path, capsys)
     assert all(json.loads(line)["pose_guess"] is None for line in lines)  # < 3 detections
     assert main(["fingertips", "detect", str(tmp_path / "seq"), "--out", str(out), "--sheet"]) == 0
     assert cv2.imread(str(out / "contact_sheet.png")).shape == (60, 3 * 80, 3)
+
+
+def test_eval_sheet_draws_every_frame_and_marks_tips(tmp_path: Path, capsys) -> None:
+    _write_folder(tmp_path / "seq", n_frames=3)
+    sheet = tmp_path / "sheet" / "scored.png"
+    argv = ["fingertips", "eval", str(tmp_path / "seq"), "--json", "--sheet", str(sheet)]
+    assert main(argv) == 0
+    result = json.loads(capsys.readouterr().out)  # stdout stays one JSON object
+    picture = cv2.imread(str(sheet))[..., ::-1]
+    assert picture.shape == (60, 3 * 80, 3)
+    # Each tile circles the annotated tip (39.5, 10): green if found, red if missed.
+    found = round(3 * result["recall_at_10px"])
+    for k in range(3):
+        ring = picture[10 - 10 : 10 + 11, 80 * k + 29 : 80 * k + 51].reshape(-1, 3)
+        green = np.any(np.all(ring == (0, 220, 0), axis=1))
+        red = np.any(np.all(ring == (255, 40, 40), axis=1))
+        assert green != red
+        found -= green
+    assert found == 0
+
+
+def test_scored_overlay_colours_found_and_missed_tips() -> None:
+    depth = np.full((60, 80), 0.5, np.float32)
+    tips = np.full((5, 2), np.nan)
+    tips[:2] = [[20.0, 30.0], [60.0, 30.0]]
+    uv = np.array([[23.0, 30.0], [40.0, 50.0]])  # finds tip 0; the other is false
+    picture = scored_overlay(depth, uv, tips)
+
+    def has(colour, u, v, r=12):
+        patch = picture[max(v - r, 0) : v + r + 1, max(u - r, 0) : u + r + 1].reshape(-1, 3)
+        return bool(np.any(np.all(patch == colour, axis=1)))
+
+    green, red, cyan, orange = (0, 220, 0), (255, 40, 40), (0, 230, 255), (255, 150, 0)
+    assert has(green, 20, 30) and not has(red, 20, 30)
+    assert has(red, 60, 30) and not has(green, 60, 30)
+    assert has(cyan, 23, 30, r=4) and has(orange, 40, 50, r=4) and not has(cyan, 40, 50, r=4)
+    # VGA frames are halved so that a sheet of many frames stays readable.
+    assert scored_overlay(np.zeros((480, 640), np.float32), uv, tips).shape == (240, 320, 3)
 
 
 @pytest.mark.skipif(not REAL.is_dir(), reason="shared real depth data not available")

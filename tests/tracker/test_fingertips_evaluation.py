@@ -11,6 +11,7 @@ import pytest
 from tracker.fingertips import Detection
 from tracker.fingertips.evaluation import (
     fingertip_metrics,
+    match_frame_2d,
     match_within,
     read_annotated_depth,
 )
@@ -100,6 +101,22 @@ def test_match_within_prefers_more_pairs() -> None:
     distance = np.array([[1.0, 2.0], [1.5, 9.0]])
     rows, cols = match_within(distance, gate=2.5)
     assert sorted(zip(rows.tolist(), cols.tolist(), strict=True)) == [(0, 1), (1, 0)]
+
+
+def test_match_frame_2d_marks_found_tips_and_matched_detections() -> None:
+    tips = np.full((5, 2), np.nan)
+    tips[[0, 2, 3]] = [[10.0, 10.0], [50.0, 10.0], [58.0, 10.0]]
+    # Detection 0 is 3 px from tip 0; detection 1 lies between tips 2 and 3 (4 px from
+    # each) and can only take one; detection 2 is 30 px from everything; the NaN tips
+    # 1 and 4 are never found.
+    uv = np.array([[13.0, 10.0], [54.0, 10.0], [30.0, 40.0]])
+    found, matched = match_frame_2d(uv, tips, gate_px=10.0)
+    assert matched.tolist() == [True, True, False]
+    assert found[[0, 1, 4]].tolist() == [True, False, False]
+    assert found[2] != found[3]
+    assert found.sum() == matched.sum() == 2
+    found, matched = match_frame_2d(np.zeros((0, 2)), tips)
+    assert not found.any() and matched.shape == (0,)
 
 
 @pytest.mark.skipif(not REAL_DEPTH.is_dir(), reason="shared/data/real_depth not present")

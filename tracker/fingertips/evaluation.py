@@ -193,6 +193,39 @@ def match_within(distance: NDArray[np.float64], gate: float) -> tuple[NDArray, N
     return rows[keep], cols[keep]
 
 
+def match_frame_2d(
+    uv_px: NDArray[np.float64], tips_px: NDArray[np.float64], *, gate_px: float = 10.0
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Which annotated tips and which detections of one frame are paired within ``gate_px``.
+
+    The one-to-one matching of ``recall_at_10px`` (:func:`match_within` on image
+    distances).
+
+    Parameters
+    ----------
+    uv_px : (K, 2) float
+        Detections, pixels.
+    tips_px : (5, 2) float
+        Annotated fingertips, pixels; NaN rows are not annotated (never found).
+    gate_px : float
+
+    Returns
+    -------
+    tip_found : (5,) bool
+    detection_matched : (K,) bool
+    """
+    detections = np.asarray(uv_px, dtype=np.float64).reshape(-1, 2)
+    tips = np.asarray(tips_px, dtype=np.float64).reshape(-1, 2)
+    annotated = np.flatnonzero(np.all(np.isfinite(tips), axis=1))
+    distance = np.linalg.norm(detections[:, None] - tips[None, annotated], axis=2)
+    rows, cols = match_within(distance, gate_px)
+    tip_found = np.zeros(tips.shape[0], dtype=bool)
+    tip_found[annotated[cols]] = True
+    detection_matched = np.zeros(detections.shape[0], dtype=bool)
+    detection_matched[rows] = True
+    return tip_found, detection_matched
+
+
 def _safe_ratio(numerator: float, denominator: float) -> float:
     return numerator / denominator if denominator else math.nan
 
@@ -240,7 +273,7 @@ def fingertip_metrics(
         n_det += len(frame_dets)
         n_tip += int(annotated.sum())
         matched_3d += rows.size
-        matched_2d += match_within(distance_2d, gate_2d_px)[0].size
+        matched_2d += int(match_frame_2d(uv, frame_px, gate_px=gate_2d_px)[0].sum())
         if distance_2d.size:
             rows_all, cols_all = linear_sum_assignment(distance_2d)
             errors_ungated.extend(distance_2d[rows_all, cols_all])
@@ -280,6 +313,28 @@ def evaluate_detector(
     FingertipMetrics
         Including the mean wall-clock detection time per frame.
     """
+    detections, ms_per_frame = run_detector(data, model, config=config, progress=progress)
+    metrics = fingertip_metrics(detections, data.tips_m, data.tips_px)
+    return dataclasses.replace(metrics, ms_per_frame=ms_per_frame)
+
+
+def run_detector(
+    data: AnnotatedDepth,
+    model: FingertipForest,
+    *,
+    config: DetectorConfig = DEFAULT_DETECTOR,
+    progress: Callable[[Iterable[NDArray[np.float32]]], Iterable[NDArray[np.float32]]]
+    | None = None,
+) -> tuple[list[tuple[Detection, ...]], float]:
+    """:func:`detect_fingertips` on every frame of ``data``.
+
+    Returns
+    -------
+    detections : list of tuple of Detection
+        One tuple per frame.
+    ms_per_frame : float
+        Mean wall-clock detection time, milliseconds.
+    """
     frames: Iterable[NDArray[np.float32]] = data.depth_m
     if progress is not None:
         frames = progress(frames)
@@ -289,9 +344,7 @@ def evaluate_detector(
         start = time.perf_counter()
         detections.append(detect_fingertips(depth, data.intrinsics, model, config=config))
         elapsed += time.perf_counter() - start
-    metrics = fingertip_metrics(detections, data.tips_m, data.tips_px)
-    n_frames = max(len(detections), 1)
-    return dataclasses.replace(metrics, ms_per_frame=1000.0 * elapsed / n_frames)
+    return detections, 1000.0 * elapsed / max(len(detections), 1)
 
 
 @dataclass(frozen=True)
