@@ -45,6 +45,9 @@ from tracker.fingertips.sequence import read_depth_scale, read_intrinsics
 MEDIAPIPE_TIPS = (4, 8, 12, 16, 20)
 """Indices of the thumb, index, middle, ring and little fingertips among 21 keypoints."""
 
+FrameProgress = Callable[[Iterable[NDArray[np.float32]]], Iterable[NDArray[np.float32]]]
+"""Wraps the iterable of depth frames to show progress (e.g. ``tqdm.tqdm``)."""
+
 
 @dataclass(frozen=True)
 class AnnotatedDepth:
@@ -295,8 +298,7 @@ def evaluate_detector(
     model: FingertipForest,
     *,
     config: DetectorConfig = DEFAULT_DETECTOR,
-    progress: Callable[[Iterable[NDArray[np.float32]]], Iterable[NDArray[np.float32]]]
-    | None = None,
+    progress: FrameProgress | None = None,
 ) -> FingertipMetrics:
     """Run :func:`detect_fingertips` on every frame and score the detections.
 
@@ -323,10 +325,16 @@ def run_detector(
     model: FingertipForest,
     *,
     config: DetectorConfig = DEFAULT_DETECTOR,
-    progress: Callable[[Iterable[NDArray[np.float32]]], Iterable[NDArray[np.float32]]]
-    | None = None,
+    progress: FrameProgress | None = None,
 ) -> tuple[list[tuple[Detection, ...]], float]:
     """:func:`detect_fingertips` on every frame of ``data``.
+
+    Parameters
+    ----------
+    data : AnnotatedDepth
+    model : FingertipForest
+    config : DetectorConfig
+    progress : FrameProgress, optional
 
     Returns
     -------
