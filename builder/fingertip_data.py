@@ -24,7 +24,10 @@ Every example is one depth image of the hand model in a random scene:
 
 Fingertips are the 3D keypoints 4, 8, 12, 16, 20 in the camera frame; a tip is NaN
 when its projection falls outside the image or when the clean depth there is more than
-``occlusion_tolerance_m`` in front of it.
+``occlusion_tolerance_m`` in front of it. With ``surface_tip_depth_m`` set, a tip hidden
+by at most that much surface is instead moved onto the surface in front of it: the end
+of a curled finger as the camera sees it, where annotators (and fitted hand models)
+place the tip of a finger curled toward the palm.
 """
 
 from __future__ import annotations
@@ -112,6 +115,10 @@ class FingertipDataConfig:
         degrees.
     occlusion_tolerance_m : float
         A tip is hidden when the depth at its pixel is more than this in front of it.
+    surface_tip_depth_m : float
+        A tip hidden by at most this much surface (metres; more than
+        ``occlusion_tolerance_m``) is not hidden but moved onto that surface, to the
+        point its pixel sees (:func:`visible_tips`). 0 (default): off.
     curl_fraction : float
         Share of scenes whose four fingers are curled toward the palm (claw, half
         fist; :func:`curl_fingers`) on top of a posture drawn as usual (which gives the
@@ -122,7 +129,10 @@ class FingertipDataConfig:
     curl_mcp_range_deg, curl_pip_range_deg, curl_dip_range_deg : tuple of float
         A curled scene draws one MCP, PIP and DIP flexion uniformly in these ranges,
         degrees; every curled finger gets them plus ``posture_jitter_deg`` of Gaussian
-        jitter each (clipped to the joint limits).
+        jitter each (clipped to the joint limits, see ``curl_beyond_limits``).
+    curl_beyond_limits : bool
+        Let curled PIP and DIP flexions exceed the upper joint limits (real hands
+        curled against the palm reach about 115° at the DIP, the model's limit is 85°).
     curl_palm_fraction : float
         Share of the curled scenes seen from the palm side: the direction to the camera
         is uniform over the cap within ``facing_cone_deg`` of the palm normal; the
@@ -157,12 +167,14 @@ class FingertipDataConfig:
     wrist_flex_max_deg: float = 50.0
     wrist_deviation_max_deg: float = 25.0
     occlusion_tolerance_m: float = 0.015
+    surface_tip_depth_m: float = 0.0
     curl_fraction: float = 0.0
     curl_finger_probability: float = 1.0
     curl_mcp_range_deg: tuple[float, float] = (0.0, 70.0)
     curl_pip_range_deg: tuple[float, float] = (75.0, 110.0)
     curl_dip_range_deg: tuple[float, float] = (30.0, 85.0)
     curl_palm_fraction: float = 0.7
+    curl_beyond_limits: bool = False
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -181,6 +193,13 @@ class FingertipDataConfig:
         for name in ("curl_fraction", "curl_finger_probability", "curl_palm_fraction"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name}: expected a share in [0, 1], got {getattr(self, name)}")
+        if self.surface_tip_depth_m and not (
+            self.surface_tip_depth_m > self.occlusion_tolerance_m >= 0
+        ):
+            raise ValueError(
+                "surface_tip_depth_m: expected 0 or more than occlusion_tolerance_m "
+                f"({self.occlusion_tolerance_m}), got {self.surface_tip_depth_m}"
+            )
         if not self.noise:
             raise ValueError("noise: expected at least one preset")
         for preset in self.noise:
@@ -300,7 +319,8 @@ def curl_fingers(
     One MCP, PIP and DIP flexion is drawn uniformly in ``config.curl_*_range_deg``;
     each finger is curled with probability ``config.curl_finger_probability`` and then
     gets those angles plus ``config.posture_jitter_deg`` of Gaussian jitter, clipped to
-    the joint limits. Abduction and the thumb are kept.
+    the joint limits (PIP and DIP only to the lower ones with
+    ``config.curl_beyond_limits``). Abduction and the thumb are kept.
 
     Returns
     -------
@@ -321,7 +341,10 @@ def curl_fingers(
             continue
         for joint, angle, extra in zip(("mcp", "pip", "dip"), angles, jitter, strict=True):
             index = JOINT_NAMES.index(f"{finger}_{joint}_flex")
-            posture[index] = np.clip(np.radians(angle + extra), *limits[index])
+            low, high = limits[index]
+            if config.curl_beyond_limits and joint != "mcp":
+                high = np.inf
+            posture[index] = np.clip(np.radians(angle + extra), low, high)
     return posture
 
 
@@ -486,12 +509,15 @@ def visible_tips(
     intrinsics: ArrayLike,
     *,
     tolerance_m: float = 0.015,
+    surface_m: float = 0.0,
 ) -> NDArray[np.float64]:
-    """Fingertips with the hidden ones set to NaN.
+    """Fingertips with the hidden ones set to NaN (or moved onto the surface hiding them).
 
     A tip is hidden when it is behind the camera, projects outside the image, or the
     depth at its (rounded) pixel is measured and more than ``tolerance_m`` in front of
-    it. Use the clean depth (before noise).
+    it. A tip hidden by at most ``surface_m`` of depth is moved instead to the 3D point
+    its pixel sees (the end of a curled finger seen from the palm). Use the clean depth
+    (before noise).
 
     Parameters
     ----------
@@ -502,6 +528,9 @@ def visible_tips(
     intrinsics : (4,) float
         ``(fx, fy, cx, cy)`` in pixels.
     tolerance_m : float
+        Metres.
+    surface_m : float
+        Metres; at most ``tolerance_m`` (such as the default 0) turns moving off.
 
     Returns
     -------
@@ -516,9 +545,15 @@ def visible_tips(
             tips[k] = np.nan
             continue
         u, v = round(fx * x / z + cx), round(fy * y / z + cy)
-        inside = 0 <= u < width and 0 <= v < height
-        if not inside or 0 < depth[v, u] < z - tolerance_m:
+        if not (0 <= u < width and 0 <= v < height):
             tips[k] = np.nan
+            continue
+        seen = float(depth[v, u])
+        if 0 < seen < z - tolerance_m:
+            if seen >= z - surface_m:
+                tips[k] = [(u - cx) * seen / fx, (v - cy) * seen / fy, seen]
+            else:
+                tips[k] = np.nan
     return tips
 
 
@@ -557,6 +592,7 @@ def render_scene(
         keypoints[list(FINGERTIP_KEYPOINTS)],
         intrinsics,
         tolerance_m=config.occlusion_tolerance_m,
+        surface_m=config.surface_tip_depth_m,
     )
     depth = apply_depth_noise(depth, intrinsics, noise_preset(scene.noise), rng=rng)
     if scene.mirrored:

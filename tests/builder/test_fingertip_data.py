@@ -20,7 +20,7 @@ from builder.fingertip_data import (
     visible_tips,
     write_annotated_folder,
 )
-from glovedb.hand_model import FINGERTIP_KEYPOINTS, JOINT_NAMES
+from glovedb.hand_model import FINGERTIP_KEYPOINTS, JOINT_NAMES, joint_limits_rad
 from tracker.fingertips.evaluation import read_annotated_depth
 from tracker.fingertips.features import project
 
@@ -46,6 +46,29 @@ def test_visible_tips_known_cases() -> None:
     np.testing.assert_array_equal(out[0], tips[0])
 
 
+def test_surface_tips_move_onto_the_surface_that_hides_them() -> None:
+    depth = np.zeros((24, 32), np.float32)
+    depth[10:14, :] = 0.5
+    tips = np.array(
+        [
+            [0.0, 0.0, 0.51],  # 1 cm behind: visible, kept as it is
+            [0.0, 0.0, 0.53],  # 3 cm behind: moved onto the surface
+            [0.001, 0.0, 0.56],  # 6 cm behind: still hidden
+        ]
+    )
+    out = visible_tips(depth, tips, INTRINSICS, tolerance_m=0.015, surface_m=0.04)
+    np.testing.assert_array_equal(out[0], tips[0])
+    # It projects to (15.5, 11.5), which rounds half to even to column 16, row 12, a
+    # pixel that sees 0.5 m.
+    np.testing.assert_allclose(out[1], [(16 - 15.5) * 0.5 / 100, (12 - 11.5) * 0.5 / 100, 0.5])
+    assert np.isnan(out[2]).all()
+    # Off by default; surface_m at most the tolerance changes nothing.
+    hidden = visible_tips(depth, tips, INTRINSICS, tolerance_m=0.015)
+    assert np.isnan(hidden[1:]).all()
+    with pytest.raises(ValueError, match="surface_tip_depth_m"):
+        FingertipDataConfig(surface_tip_depth_m=0.01)
+
+
 def test_curl_fingers_within_ranges() -> None:
     config = replace(
         CLEAN, posture_jitter_deg=0.0, curl_mcp_range_deg=(20.0, 60.0),
@@ -66,6 +89,22 @@ def test_curl_fingers_within_ranges() -> None:
         np.testing.assert_allclose(posture[:4], np.arange(4.0))  # the thumb is kept
     untouched = curl_fingers(base, replace(config, curl_finger_probability=0.0), rng)
     np.testing.assert_array_equal(untouched, base)
+
+
+def test_curl_fingers_beyond_the_limits_only_when_asked() -> None:
+    config = replace(
+        CLEAN, posture_jitter_deg=0.0, curl_mcp_range_deg=(100.0, 100.0),
+        curl_pip_range_deg=(120.0, 120.0), curl_dip_range_deg=(115.0, 115.0),
+    )  # fmt: skip
+    limits = np.degrees(joint_limits_rad())
+    for beyond in (False, True):
+        case = replace(config, curl_beyond_limits=beyond)
+        posture = np.degrees(curl_fingers(np.zeros(20), case, np.random.default_rng(0)))
+        for joint, wanted in (("mcp", 100.0), ("pip", 120.0), ("dip", 115.0)):
+            index = JOINT_NAMES.index(f"index_{joint}_flex")
+            # MCP stays clipped either way; PIP and DIP pass their limits when asked.
+            expected = wanted if beyond and joint != "mcp" else min(wanted, limits[index, 1])
+            assert posture[index] == pytest.approx(expected)
 
 
 def test_curled_scenes_face_the_palm_and_are_deterministic() -> None:

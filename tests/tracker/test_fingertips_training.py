@@ -1,6 +1,7 @@
 """Training on toy depth hands (spheres and capsules) finds their planted fingertips."""
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ from builder.fingertip_training import (
     FingertipTrainingConfig,
     collect_samples,
     label_points,
+    load_recipe,
     train_fingertip_forest,
 )
 from tracker.fingertips import FINGER_NAMES, DetectorConfig, detect_fingertips
@@ -179,3 +181,13 @@ def test_assignment_names_fingers_of_the_posed_model(toy_forest) -> None:
                 correct += d.finger == FINGER_NAMES[int(np.nanargmin(distance))]
     assert total >= 25
     assert correct / total >= 0.9
+
+
+@pytest.mark.parametrize(
+    "path", sorted((Path(__file__).resolve().parents[2] / "configs" / "fingertips").glob("*.toml"))
+)
+def test_every_shipped_config_reads(path: Path) -> None:
+    recipe = load_recipe(path)
+    assert recipe.data.n_images >= 1
+    # Only a recipe with a verifier may set a verifier threshold.
+    assert recipe.verifier is not None or recipe.detector.min_tip_probability == 0
