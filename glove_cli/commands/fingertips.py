@@ -400,7 +400,7 @@ def scored_overlay(depth_m: Any, uv_px: Any, tips_px: Any, *, gate_px: float = 1
     for point, hit in zip(uv * scale, matched, strict=True):
         color = (0, 230, 255) if hit else (255, 150, 0)
         centre = tuple(round(x) for x in point.tolist())
-        cv2.drawMarker(picture, centre, color, cv2.MARKER_CROSS, 2 * radius // 3 + 2, 1)
+        cv2.drawMarker(picture, centre, color, cv2.MARKER_CROSS, radius + 4, 2)
     label = f"{int(found.sum())}/{int(annotated.sum())}"
     cv2.putText(picture, label, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 0), 1)
     return picture
