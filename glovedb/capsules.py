@@ -176,3 +176,33 @@ def round_cone_distance(
     rel_sq = np.einsum("ni,ni->n", p, p)[:, None] - 2.0 * (p @ a.T) + np.einsum("ci,ci->c", a, a)
     dist_sq = rel_sq - 2.0 * t * along + t * t * length_sq
     return np.sqrt(np.maximum(dist_sq, 0.0)) - (ra + t * (rb - ra))
+
+
+def closest_capsule_points(
+    points: NDArray[np.float64],
+    start_m: NDArray[np.float64],
+    end_m: NDArray[np.float64],
+    radius_start_m: NDArray[np.float64],
+    radius_end_m: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Nearest surface point ``(N, 3)`` of a set of round cones, and its distance ``(N,)``.
+
+    The surface point lies on the nearest cone's sphere at its closest axis point, as
+    in :func:`round_cone_distance`.
+    """
+    distance = round_cone_distance(points, start_m, end_m, radius_start_m, radius_end_m)
+    nearest = np.argmin(distance, axis=1)
+    a, b = start_m[nearest], end_m[nearest]
+    axis = b - a
+    t = np.clip(
+        np.einsum("ni,ni->n", points - a, axis)
+        / np.maximum(np.einsum("ni,ni->n", axis, axis), 1e-18),
+        0.0,
+        1.0,
+    )
+    centre = a + t[:, None] * axis
+    radius = radius_start_m[nearest] + t * (radius_end_m[nearest] - radius_start_m[nearest])
+    away = points - centre
+    length = np.maximum(np.linalg.norm(away, axis=1), 1e-12)
+    surface = centre + away * (radius / length)[:, None]
+    return surface, np.abs(distance[np.arange(len(points)), nearest])

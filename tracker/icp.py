@@ -116,13 +116,44 @@ def rigid_fit(
     """
     source = as_array("source", source, (None, 3), np.float64)
     target = as_array("target", target, (len(source), 3), np.float64)
-    w = np.full(len(source), 1.0 / len(source)) if weights is None else weights / weights.sum()
-    source_mean, target_mean = w @ source, w @ target
-    covariance = ((target - target_mean) * w[:, None]).T @ (source - source_mean)
+    rotation, translation = batch_rigid_fit(
+        source[None], target[None], None if weights is None else np.asarray(weights)[None]
+    )
+    return rotation[0], translation[0]
+
+
+def batch_rigid_fit(
+    source: NDArray[np.float64],
+    target: NDArray[np.float64],
+    weights: NDArray[np.float64] | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`rigid_fit` of a batch of paired point sets at once (Kabsch).
+
+    Parameters
+    ----------
+    source, target : (H, m, 3) float64
+        ``m >= 3`` paired points per set.
+    weights : (H, m) float, optional
+        Non-negative weight of each pair (default: all equal).
+
+    Returns
+    -------
+    rotation : (H, 3, 3) float64
+    translation : (H, 3) float64
+    """
+    if weights is None:
+        w = np.full(source.shape[:2], 1.0 / source.shape[1])
+    else:
+        w = weights / weights.sum(axis=1, keepdims=True)
+    source_mean = np.einsum("hm,hmi->hi", w, source)
+    target_mean = np.einsum("hm,hmi->hi", w, target)
+    covariance = np.einsum(
+        "hm,hmi,hmj->hij", w, target - target_mean[:, None], source - source_mean[:, None]
+    )
     u, _, vt = np.linalg.svd(covariance)
-    reflection = np.sign(np.linalg.det(u @ vt))
-    rotation = u @ np.diag([1.0, 1.0, reflection]) @ vt
-    return rotation, target_mean - rotation @ source_mean
+    u[:, :, 2] *= np.sign(np.linalg.det(u @ vt))[:, None]
+    rotation = u @ vt
+    return rotation, target_mean - np.einsum("hij,hj->hi", rotation, source_mean)
 
 
 def _point_to_plane_step(

@@ -9,10 +9,10 @@ from glovedb.postures import load_named_postures
 from tracker.fingertips import FINGER_NAMES
 from tracker.fingertips.pose_guess import (
     _hand_capsules,
-    batch_rigid_fit,
     guess_hand_pose,
     hand_points_from_depth,
 )
+from tracker.icp import batch_rigid_fit
 
 
 def _random_rotation(rng: np.random.Generator) -> np.ndarray:

@@ -20,6 +20,7 @@ from tracker.fingertips.features import (
     nearest_band,
     probe_image,
     project,
+    stride_for_budget,
     stride_for_spacing,
 )
 from tracker.fingertips.forest import FingertipForest, apply_probe_image, predict_leaves
@@ -220,8 +221,7 @@ def _frame_votes(
     if config.pixel_spacing_m > 0:
         stride = stride_for_spacing(masked, float(camera[0]), spacing_m=config.pixel_spacing_m)
     if config.max_pixels > 0:
-        n_foreground = int(np.count_nonzero(masked))
-        stride = max(stride, math.ceil(math.sqrt(n_foreground / config.max_pixels)))
+        stride = max(stride, stride_for_budget(masked, config.max_pixels))
     pixels = foreground_pixels(masked, stride=stride)
     probes = probe_image(masked)
     prediction = predict_leaves(model, apply_probe_image(model, probes, pixels, camera))
@@ -381,7 +381,7 @@ def name_fingers(
         The same detections with ``finger`` set (None: left unassigned).
     """
     tips = as_array("model_tips_m", model_tips_m, (len(FINGER_NAMES), 3), np.float64)
-    positions = np.array([[d.x_m, d.y_m, d.z_m] for d in detections]).reshape(-1, 3)
+    positions = detection_points(detections)
     verified = min_tip_probability > 0 and all(d.tip_probability is not None for d in detections)
     if verified:
         weights = np.array([d.tip_probability for d in detections], dtype=np.float64)
@@ -396,6 +396,11 @@ def name_fingers(
         replace(d, finger=FINGER_NAMES[t] if t >= 0 else None)
         for d, t in zip(detections, assignment.finger_of_detection, strict=True)
     )
+
+
+def detection_points(detections: Sequence[Detection]) -> NDArray[np.float64]:
+    """Camera-frame positions ``(K, 3)`` of detections, metres."""
+    return np.array([[d.x_m, d.y_m, d.z_m] for d in detections], dtype=np.float64).reshape(-1, 3)
 
 
 def fingertips_output(detections: Sequence[Detection]) -> list[dict[str, Any]]:

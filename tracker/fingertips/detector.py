@@ -28,6 +28,7 @@ from tracker.fingertips.detect import (
     Detection,
     DetectorConfig,
     detect_fingertips,
+    detection_points,
     fingertips_output,
     model_detector_config,
     name_fingers,
@@ -35,7 +36,6 @@ from tracker.fingertips.detect import (
 from tracker.fingertips.forest import DEFAULT_MODEL_PATH, FingertipForest, load_forest
 from tracker.fingertips.pose_guess import (
     PoseGuess,
-    detection_points,
     guess_hand_pose,
     hand_points_from_depth,
 )

@@ -37,6 +37,7 @@ from tracker.fingertips.detect import (
     Detection,
     DetectorConfig,
     detect_fingertips,
+    detection_points,
 )
 from tracker.fingertips.detector import FingertipDetector
 from tracker.fingertips.forest import FingertipForest
@@ -266,7 +267,7 @@ def fingertip_metrics(
     errors_ungated: list[float] = []
     for frame_dets, frame_m, frame_px in zip(detections, tips_m, tips_px, strict=True):
         annotated = np.all(np.isfinite(frame_m), axis=1)
-        xyz = np.array([[d.x_m, d.y_m, d.z_m] for d in frame_dets]).reshape(-1, 3)
+        xyz = detection_points(frame_dets)
         uv = np.array([[d.u_px, d.v_px] for d in frame_dets]).reshape(-1, 2)
         distance_3d = np.linalg.norm(xyz[:, None] - frame_m[None, annotated], axis=2)
         distance_2d = np.linalg.norm(uv[:, None] - frame_px[None, annotated], axis=2)
@@ -388,12 +389,6 @@ class PoseGuessMetrics:
         return asdict(self)
 
 
-def rotation_angle_deg(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
-    """Angle of the rotation between two rotation matrices, degrees."""
-    cosine = (np.trace(a.T @ b) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
-
-
 def evaluate_pose_guesses(
     folder: str | os.PathLike[str],
     detector: FingertipDetector,
@@ -419,6 +414,7 @@ def evaluate_pose_guesses(
         If ``groundtruth.jsonl`` is missing or has no poses.
     """
     from glovedb.hand_model import make_skeleton
+    from glovedb.rotations import geodesic_angle
     from tracker.fingertips.sequence import open_depth_sequence
 
     root = Path(folder)
@@ -447,7 +443,7 @@ def evaluate_pose_guesses(
         keypoints = np.asarray(record["keypoints_3d_m"], dtype=np.float64)
         rows.append(
             (
-                rotation_angle_deg(guess.rotation, np.asarray(record["rotation"], np.float64)),
+                float(np.degrees(geodesic_angle(guess.rotation, record["rotation"]))),
                 1000.0 * float(np.linalg.norm(guess.translation_m - record["translation_m"])),
                 1000.0 * float(np.linalg.norm(guess.keypoints_3d_m - keypoints, axis=1).mean()),
             )

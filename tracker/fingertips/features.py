@@ -17,6 +17,8 @@ isolated object (a fingertip) there.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -168,6 +170,18 @@ def stride_for_spacing(depth_m: ArrayLike, focal_px: float, *, spacing_m: float)
         raise ValueError(f"spacing_m: expected a positive distance, got {spacing_m}")
     nearest = nearest_depth(depth)
     return max(1, round(spacing_m * focal_px / nearest)) if nearest > 0 else 1
+
+
+def stride_for_budget(depth_m: ArrayLike, max_pixels: int) -> int:
+    """Smallest pixel stride that leaves about ``max_pixels`` (> 0) measured pixels.
+
+    Returns
+    -------
+    int
+        At least 1.
+    """
+    count = int(np.count_nonzero(as_array("depth_m", depth_m, (None, None), kind="fiu")))
+    return max(1, math.ceil(math.sqrt(count / max_pixels)))
 
 
 def foreground_pixels(depth_m: ArrayLike, *, stride: int = 1) -> NDArray[np.int32]:

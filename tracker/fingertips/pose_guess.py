@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,6 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from glovedb._validate import as_array
 from glovedb.capsules import (
     CapsuleSet,
+    closest_capsule_points,
     concatenate,
     finger_capsules,
     palm_capsules,
@@ -43,15 +43,15 @@ from glovedb.hand_model import (
     make_skeleton,
 )
 from tracker.fingertips.assignment import FINGER_NAMES
-from tracker.fingertips.detect import Detection
 from tracker.fingertips.features import (
     backproject,
     foreground_pixels,
     intrinsics_array,
     mask_depth_range,
     nearest_band,
+    stride_for_budget,
 )
-from tracker.icp import rigid_fit
+from tracker.icp import batch_rigid_fit, rigid_fit
 
 _PALM_HALF_THICKNESS = 0.06
 """Half thickness of the palm capsules, in hand lengths (11 mm for a 0.19 m hand)."""
@@ -92,11 +92,6 @@ class PoseGuess:
     surface_rms_m: float
 
 
-def detection_points(detections: Sequence[Detection]) -> NDArray[np.float64]:
-    """Camera-frame positions ``(K, 3)`` of detections, metres."""
-    return np.array([[d.x_m, d.y_m, d.z_m] for d in detections], dtype=np.float64).reshape(-1, 3)
-
-
 def hand_points_from_depth(
     depth_m: ArrayLike,
     intrinsics: ArrayLike,
@@ -129,7 +124,7 @@ def hand_points_from_depth(
     masked = nearest_band(
         mask_depth_range(depth_m, near_m=depth_range_m[0], far_m=depth_range_m[1]), band_m=band_m
     )
-    stride = max(1, math.ceil(math.sqrt(np.count_nonzero(masked) / max(max_points, 1))))
+    stride = stride_for_budget(masked, max(max_points, 1))
     pixels = foreground_pixels(masked, stride=stride)
     return backproject(pixels, masked[pixels[:, 1], pixels[:, 0]], camera).astype(np.float64)
 
@@ -190,62 +185,6 @@ def _hypotheses(n_detections: int, min_matched: int) -> list[tuple[NDArray, NDAr
     return groups
 
 
-def batch_rigid_fit(
-    source: NDArray[np.float64], target: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Least-squares ``target ~ R @ source + t`` for a batch of paired point sets.
-
-    Parameters
-    ----------
-    source, target : (H, m, 3) float64
-        ``m >= 3`` paired points per set.
-
-    Returns
-    -------
-    rotation : (H, 3, 3) float64
-    translation : (H, 3) float64
-    """
-    source_mean, target_mean = source.mean(axis=1), target.mean(axis=1)
-    covariance = np.einsum(
-        "hmi,hmj->hij", target - target_mean[:, None], source - source_mean[:, None]
-    )
-    u, _, vt = np.linalg.svd(covariance)
-    flip = np.sign(np.linalg.det(u @ vt))
-    u[:, :, 2] *= flip[:, None]
-    rotation = u @ vt
-    return rotation, target_mean - np.einsum("hij,hj->hi", rotation, source_mean)
-
-
-def closest_capsule_points(
-    points: NDArray[np.float64],
-    start_m: NDArray[np.float64],
-    end_m: NDArray[np.float64],
-    radius_start_m: NDArray[np.float64],
-    radius_end_m: NDArray[np.float64],
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Nearest surface point ``(N, 3)`` of a set of round cones, and its distance ``(N,)``.
-
-    The surface point lies on the nearest cone's sphere at its closest axis point, as
-    in :func:`glovedb.capsules.round_cone_distance`.
-    """
-    distance = round_cone_distance(points, start_m, end_m, radius_start_m, radius_end_m)
-    nearest = np.argmin(distance, axis=1)
-    a, b = start_m[nearest], end_m[nearest]
-    axis = b - a
-    t = np.clip(
-        np.einsum("ni,ni->n", points - a, axis)
-        / np.maximum(np.einsum("ni,ni->n", axis, axis), 1e-18),
-        0.0,
-        1.0,
-    )
-    centre = a + t[:, None] * axis
-    radius = radius_start_m[nearest] + t * (radius_end_m[nearest] - radius_start_m[nearest])
-    away = points - centre
-    length = np.maximum(np.linalg.norm(away, axis=1), 1e-12)
-    surface = centre + away * (radius / length)[:, None]
-    return surface, np.abs(distance[np.arange(len(points)), nearest])
-
-
 def guess_hand_pose(
     detections_m: ArrayLike,
     *,
@@ -263,7 +202,8 @@ def guess_hand_pose(
     ----------
     detections_m : (K, 3) float
         Detected fingertips in the camera frame, metres, strongest first (e.g.
-        :func:`detection_points` of :func:`~tracker.fingertips.detect_fingertips`).
+        :func:`~tracker.fingertips.detect.detection_points` of
+        :func:`~tracker.fingertips.detect_fingertips`).
     posture_rad : (20,) or (P, 20) float, optional
         Posture to assume, or several to choose from (the best fit wins); default
         the open hand (all zeros).
