@@ -1,5 +1,6 @@
 """The plain-array forest gives exactly what scikit-learn gives, without pickle."""
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -134,3 +135,48 @@ def test_load_rejects_other_files(tmp_path: Path) -> None:
     np.savez(tmp_path / "other.npz", a=np.zeros(3))
     with pytest.raises(ValueError, match="not a glove-fingertip-forest"):
         load_forest(tmp_path / "other.npz")
+
+
+def _saved_toy_forest(tmp_path: Path) -> Path:
+    rng = np.random.default_rng(1)
+    config = FingertipTrainingConfig(n_trees=2, max_depth=6, max_features=4)
+    samples = _samples(rng, 500, 8)
+    offsets = random_offsets(8, max_offset_m=0.05, seed=0)
+    forest = export_forest(fit_classifier(samples, config=config), samples, offsets, config=config)
+    path = tmp_path / "forest.npz"
+    save_forest(forest, path)
+    return path
+
+
+def test_load_rejects_damaged_files_in_one_line(tmp_path: Path) -> None:
+    whole = _saved_toy_forest(tmp_path).read_bytes()
+    cases = {
+        "garbage.npz": b"not a model\n",
+        "truncated.npz": whole[: len(whole) // 2],
+        "empty.npz": b"",
+    }
+    for name, content in cases.items():
+        (tmp_path / name).write_bytes(content)
+        expected = f"{re.escape(name)}: not a glove-fingertip-forest file"
+        with pytest.raises(ValueError, match=expected):
+            load_forest(tmp_path / name)
+    np.save(tmp_path / "single.npy", np.zeros(3))
+    (tmp_path / "single.npy").rename(tmp_path / "single.npz")
+    with pytest.raises(ValueError, match="a single array, not an archive"):
+        load_forest(tmp_path / "single.npz")
+
+
+def test_load_names_a_missing_or_corrupt_member(tmp_path: Path) -> None:
+    path = _saved_toy_forest(tmp_path)
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files if k != "node_offset_m"}
+    np.savez(tmp_path / "partial.npz", **arrays)
+    with pytest.raises(ValueError, match=r"partial\.npz: damaged .*node_offset_m"):
+        load_forest(tmp_path / "partial.npz")
+    # Flip bytes inside the stored members (not the archive's directory at the end).
+    damaged = bytearray(path.read_bytes())
+    for i in range(len(damaged) // 4, len(damaged) // 2):
+        damaged[i] ^= 0x5A
+    (tmp_path / "flipped.npz").write_bytes(bytes(damaged))
+    with pytest.raises(ValueError, match=r"flipped\.npz: damaged glove-fingertip-forest file"):
+        load_forest(tmp_path / "flipped.npz")

@@ -43,6 +43,8 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -210,33 +212,49 @@ def load_forest(path: str | os.PathLike[str] = DEFAULT_MODEL_PATH) -> FingertipF
     Raises
     ------
     ValueError
-        If the file is not a fingertip forest of a supported format version.
+        If the file is missing, damaged (not a readable ``.npz`` archive, a member
+        missing or truncated) or not a fingertip forest of a supported format version.
     """
+    name = os.fspath(path)
     if not Path(path).is_file():
-        raise ValueError(f"{os.fspath(path)}: no such model file")
-    with np.load(path, allow_pickle=False) as data:
-        if "format" not in data or str(data["format"]) != FORMAT_NAME:
-            raise ValueError(f"{os.fspath(path)}: not a {FORMAT_NAME} file")
-        if int(data["format_version"]) not in READABLE_VERSIONS:
-            raise ValueError(
-                f"{os.fspath(path)}: format version {int(data['format_version'])}, "
-                f"this code reads {', '.join(map(str, READABLE_VERSIONS))}"
-            )
-        near, far = (float(x) for x in data["depth_range_m"])
-        return FingertipForest(
-            offsets_m=data["offsets_m"].astype(np.float32),
-            depth_range_m=(near, far),
-            tree_roots=data["tree_roots"].astype(np.int32),
-            node_feature=data["node_feature"].astype(np.int32),
-            node_threshold=data["node_threshold"].astype(np.float32),
-            node_left=data["node_left"].astype(np.int32),
-            node_right=data["node_right"].astype(np.int32),
-            node_probability=data["node_probability"].astype(np.float32),
-            node_offset_m=data["node_offset_m"].astype(np.float32),
-            settings_json=str(data["settings_json"]),
-            version=str(data["version"]),
-            verifier=_read_verifier(data, os.fspath(path)),
+        raise ValueError(f"{name}: no such model file")
+    try:
+        archive = np.load(path, allow_pickle=False)
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile) as error:
+        raise ValueError(f"{name}: not a {FORMAT_NAME} file (no readable .npz archive)") from error
+    if not isinstance(archive, np.lib.npyio.NpzFile):
+        raise ValueError(f"{name}: not a {FORMAT_NAME} file (a single array, not an archive)")
+    with archive as data:
+        try:
+            return _forest_from_archive(data, name)
+        except (KeyError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as error:
+            raise ValueError(f"{name}: damaged {FORMAT_NAME} file ({error})") from error
+
+
+def _forest_from_archive(data: Any, path: str) -> FingertipForest:
+    """The forest in an opened ``.npz`` archive (see :func:`load_forest`)."""
+    if "format" not in data or str(data["format"]) != FORMAT_NAME:
+        raise ValueError(f"{path}: not a {FORMAT_NAME} file")
+    if int(data["format_version"]) not in READABLE_VERSIONS:
+        raise ValueError(
+            f"{path}: format version {int(data['format_version'])}, "
+            f"this code reads {', '.join(map(str, READABLE_VERSIONS))}"
         )
+    near, far = (float(x) for x in data["depth_range_m"])
+    return FingertipForest(
+        offsets_m=data["offsets_m"].astype(np.float32),
+        depth_range_m=(near, far),
+        tree_roots=data["tree_roots"].astype(np.int32),
+        node_feature=data["node_feature"].astype(np.int32),
+        node_threshold=data["node_threshold"].astype(np.float32),
+        node_left=data["node_left"].astype(np.int32),
+        node_right=data["node_right"].astype(np.int32),
+        node_probability=data["node_probability"].astype(np.float32),
+        node_offset_m=data["node_offset_m"].astype(np.float32),
+        settings_json=str(data["settings_json"]),
+        version=str(data["version"]),
+        verifier=_read_verifier(data, path),
+    )
 
 
 def apply_features(forest: FingertipForest, features: ArrayLike) -> NDArray[np.int32]:
