@@ -77,6 +77,28 @@ def test_missing_annotations_raise(tmp_path: Path) -> None:
         read_annotated_depth(tmp_path)
 
 
+def test_bad_annotation_lines_and_depth_sizes_raise_one_line_errors(tmp_path: Path) -> None:
+    _write_folder(tmp_path, [{"frame": 0}, {"frame": 1}], "annotations.jsonl")
+    path = tmp_path / "annotations.jsonl"
+    path.write_text('{"frame": 0}\nnot json\n')
+    with pytest.raises(ValueError, match=r"annotations\.jsonl:2: not an annotation record"):
+        read_annotated_depth(tmp_path)
+    path.write_text('{"frame": 0, "fingertips": [1, 2]}\n')
+    with pytest.raises(ValueError, match=r"annotations\.jsonl:1: not an annotation record"):
+        read_annotated_depth(tmp_path)
+    path.write_text("\n")
+    with pytest.raises(ValueError, match="no annotated frames"):
+        read_annotated_depth(tmp_path)
+    # A depth image of another size than intrinsic.json says: the intrinsics would
+    # put its points in the wrong place, so it is refused.
+    path.write_text('{"frame": 0}\n{"frame": 1}\n')
+    cv2.imwrite(str(tmp_path / "depth" / "000001.png"), np.full((24, 32), 1000, np.uint16))
+    with pytest.raises(
+        ValueError, match=r"000001\.png: 32x24 pixels, but intrinsic\.json gives 64x48"
+    ):
+        read_annotated_depth(tmp_path)
+
+
 def test_metrics_known_values() -> None:
     tips = np.full((2, 5, 3), np.nan)
     tips[0, :3] = [[0.0, 0.0, 0.3], [0.02, 0.0, 0.3], [0.04, 0.0, 0.3]]

@@ -26,7 +26,6 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
@@ -41,7 +40,7 @@ from tracker.fingertips.detect import (
 )
 from tracker.fingertips.detector import FingertipDetector
 from tracker.fingertips.forest import FingertipForest
-from tracker.fingertips.sequence import read_depth_scale, read_intrinsics
+from tracker.fingertips.sequence import DepthSequence, read_depth_scale, read_intrinsics
 
 MEDIAPIPE_TIPS = (4, 8, 12, 16, 20)
 """Indices of the thumb, index, middle, ring and little fingertips among 21 keypoints."""
@@ -148,29 +147,36 @@ def read_annotated_depth(
     Raises
     ------
     ValueError
-        If a file is missing or a depth image is not 16-bit.
+        If a file is missing, an annotation line is malformed, there are no annotated
+        frames, or a depth image is not a 16-bit PNG of the size ``intrinsic.json``
+        gives.
     """
     root = Path(folder)
-    if not (root / annotations).is_file() or not (root / "intrinsic.json").is_file():
+    path = root / annotations
+    if not path.is_file() or not (root / "intrinsic.json").is_file():
         raise ValueError(f"{root}: expected intrinsic.json and {annotations}")
-    depth_scale = read_depth_scale(root)
-    records = [json.loads(line) for line in (root / annotations).read_text().splitlines() if line]
-    depth, tips_m, tips_px = [], [], []
-    for record in records:
-        path = root / "depth" / f"{int(record['frame']):06d}.png"
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if image is None or image.dtype != np.uint16:
-            raise ValueError(f"{path}: expected a 16-bit depth PNG")
-        depth.append(image.astype(np.float32) / np.float32(depth_scale))
-        frame_m, frame_px = _tips_of_record(record)
+    frames, tips_m, tips_px = [], [], []
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+            frames.append(int(record["frame"]))
+            frame_m, frame_px = _tips_of_record(record)
+        except (ValueError, KeyError, TypeError, IndexError, AttributeError) as error:
+            raise ValueError(f"{path}:{number}: not an annotation record ({error!r})") from error
         tips_m.append(frame_m)
         tips_px.append(frame_px)
+    if not frames:
+        raise ValueError(f"{path}: no annotated frames")
+    intrinsics, size = read_intrinsics(root)
+    sequence = DepthSequence(root, intrinsics, size, read_depth_scale(root), tuple(frames))
     return AnnotatedDepth(
-        depth_m=np.stack(depth),
-        intrinsics=read_intrinsics(root)[0],
+        depth_m=np.stack([sequence.read_depth(frame) for frame in frames]),
+        intrinsics=intrinsics,
         tips_m=np.stack(tips_m),
         tips_px=np.stack(tips_px),
-        frames=np.array([int(r["frame"]) for r in records], dtype=np.int64),
+        frames=np.array(frames, dtype=np.int64),
     )
 
 

@@ -50,12 +50,19 @@ class DepthSequence:
         Raises
         ------
         ValueError
-            If the file is missing or not a 16-bit image.
+            If the file is missing, not a 16-bit single-channel image, or not of the
+            size ``intrinsic.json`` gives (the intrinsics would not fit its pixels).
         """
         path = self.depth_path(frame)
         image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if image is None or image.dtype != np.uint16 or image.ndim != 2:
             raise ValueError(f"{path}: expected a 16-bit single-channel depth PNG")
+        width, height = self.size
+        if image.shape != (height, width):
+            raise ValueError(
+                f"{path}: {image.shape[1]}x{image.shape[0]} pixels, but intrinsic.json "
+                f"gives {width}x{height}"
+            )
         return image.astype(np.float32) / np.float32(self.depth_scale)
 
 
