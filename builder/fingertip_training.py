@@ -133,6 +133,29 @@ class FingertipTrainingConfig:
     seed: int = 0
     n_jobs: int = 1
 
+    def __post_init__(self) -> None:
+        for name in (
+            "n_features",
+            "pixels_per_image",
+            "n_trees",
+            "max_depth",
+            "min_samples_leaf",
+            "max_features",
+            "n_jobs",
+        ):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected at least 1, got {getattr(self, name)}")
+        for name in ("max_offset_m", "tip_radius_m", "depth_band_m", "hard_negative_radius_m"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}: expected a positive distance, got {getattr(self, name)}")
+        for name in ("unary_fraction", "positive_fraction", "hard_negative_fraction"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"{name}: expected a share in [0, 1], got {getattr(self, name)}")
+        near, far = self.depth_range_m
+        if not 0 <= near < far:
+            raise ValueError(f"depth_range_m: expected 0 <= near < far, got {(near, far)}")
+        check_choice("forest_kind", self.forest_kind, FOREST_KINDS)
+
 
 @dataclass(frozen=True)
 class TrainingSamples:

@@ -144,10 +144,12 @@ def run_train(args: argparse.Namespace) -> int:
     from builder.fingertip_training import load_recipe, train_from_recipe
     from tracker.fingertips.forest import load_forest, save_forest
 
-    recipe = load_recipe(args.config, **_data_overrides(args))
     out = Path(args.out)
+    if out.suffix != ".npz":
+        raise ValueError(f"--out {out}: a model file name ends in .npz")
     if not out.parent.is_dir():
         raise ValueError(f"{out.parent}: folder does not exist")
+    recipe = load_recipe(args.config, **_data_overrides(args))
     base = load_forest(args.forest) if args.forest else None
     started = time.perf_counter()
     forest = train_from_recipe(recipe, progress=True, forest=base)

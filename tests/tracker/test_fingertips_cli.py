@@ -56,6 +56,7 @@ def run_glove(*args: str) -> subprocess.CompletedProcess:
         (["fingertips", "detect", "/no/such/folder", "--out", "x"], "not a folder"),
         (["fingertips", "eval", ".", "--model", "/no/model.npz"], "no such model file"),
         (["fingertips", "train", "/no/config.toml", "--out", "m.npz"], "cannot read config"),
+        (["fingertips", "train", "/no/config.toml", "--out", "m.txt"], "ends in .npz"),
         (["fingertips", "eval", ".", "--min-tip-probability", "2"], "expected a probability"),
         (["fingertips", "eval", str(REAL), "--pose-guess"], "need groundtruth.jsonl"),
         (["fingertips", "eval", ".", "--sheet", "scores.txt"], "expected a .png"),

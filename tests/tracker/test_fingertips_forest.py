@@ -180,3 +180,21 @@ def test_load_names_a_missing_or_corrupt_member(tmp_path: Path) -> None:
     (tmp_path / "flipped.npz").write_bytes(bytes(damaged))
     with pytest.raises(ValueError, match=r"flipped\.npz: damaged glove-fingertip-forest file"):
         load_forest(tmp_path / "flipped.npz")
+
+
+def test_save_writes_the_given_path_atomically(tmp_path: Path, monkeypatch) -> None:
+    first = load_forest(_saved_toy_forest(tmp_path))
+    target = tmp_path / "model.bin"
+    save_forest(first, target)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["forest.npz", "model.bin"]
+    np.testing.assert_array_equal(load_forest(target).node_feature, first.node_feature)
+
+    def fail(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(np, "savez_compressed", fail)
+    with pytest.raises(KeyboardInterrupt):
+        save_forest(first, target)
+    # The interrupted save left neither a temporary file nor a damaged model.
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["forest.npz", "model.bin"]
+    np.testing.assert_array_equal(load_forest(target).node_feature, first.node_feature)

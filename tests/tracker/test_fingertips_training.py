@@ -191,3 +191,19 @@ def test_every_shipped_config_reads(path: Path) -> None:
     assert recipe.data.n_images >= 1
     # Only a recipe with a verifier may set a verifier threshold.
     assert recipe.verifier is not None or recipe.detector.min_tip_probability == 0
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"n_trees": 0}, "n_trees: expected at least 1"),
+        ({"pixels_per_image": 0}, "pixels_per_image: expected at least 1"),
+        ({"tip_radius_m": 0.0}, "tip_radius_m: expected a positive distance"),
+        ({"positive_fraction": 1.5}, "positive_fraction: expected a share"),
+        ({"depth_range_m": (1.0, 0.5)}, "depth_range_m: expected 0 <= near < far"),
+        ({"forest_kind": "svm"}, "forest_kind: expected one of"),
+    ],
+)
+def test_training_config_refuses_bad_values_before_any_work(change, message) -> None:
+    with pytest.raises(ValueError, match=message):
+        FingertipTrainingConfig(**change)

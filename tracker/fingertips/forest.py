@@ -159,7 +159,12 @@ def _check_forest(forest: FingertipForest) -> None:
 
 
 def save_forest(forest: FingertipForest, path: str | os.PathLike[str]) -> None:
-    """Write ``forest`` to an ``.npz`` file in the format of the module docstring."""
+    """Write ``forest`` to an ``.npz`` file in the format of the module docstring.
+
+    The file is written under a temporary name beside ``path`` and then renamed, so an
+    interrupted save never leaves a damaged model at ``path``; ``path`` is used as
+    given (no ``.npz`` is appended).
+    """
     arrays: dict[str, Any] = dict(
         format=np.array(FORMAT_NAME),
         format_version=np.array(FORMAT_VERSION, dtype=np.int64),
@@ -176,7 +181,14 @@ def save_forest(forest: FingertipForest, path: str | os.PathLike[str]) -> None:
         node_offset_m=forest.node_offset_m.astype(np.float32),
         **_verifier_arrays(forest.verifier),
     )
-    np.savez_compressed(path, **arrays)
+    target = Path(path)
+    temporary = target.with_name(f".{target.name}.{os.getpid()}.part")
+    try:
+        with open(temporary, "wb") as file:
+            np.savez_compressed(file, **arrays)
+        os.replace(temporary, target)
+    finally:
+        temporary.unlink(missing_ok=True)
 
 
 def _verifier_arrays(verifier: PeakVerifier | None) -> dict[str, NDArray]:
