@@ -45,6 +45,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from builder.depth_noise import NOISE_PRESETS, apply_depth_noise, noise_preset
 from builder.render import GloveRenderer
+from builder.sequence import require_empty_folder
 from glovedb import __version__
 from glovedb._validate import as_array, check_choice, dataclass_from_table
 from glovedb.camera import CameraIntrinsics
@@ -742,9 +743,10 @@ def write_annotated_folder(
     Raises
     ------
     ValueError
-        If the examples do not share one camera.
+        If ``folder`` exists and is not empty (checked before the first example is
+        drawn), or if the examples do not share one camera.
     """
-    root = Path(folder)
+    root = require_empty_folder(folder)
     (root / "depth").mkdir(parents=True, exist_ok=True)
     camera: NDArray[np.float64] | None = None
     size: tuple[int, int] | None = None

@@ -574,11 +574,21 @@ def render_frames(
         yield SyntheticFrame(noisy_color, noisy_depth, mask, truth)
 
 
-def prepare_folder(folder: str | Path) -> Path:
-    """Create ``folder`` with ``color/`` and ``depth/``; ``ValueError`` if it holds files."""
+def require_empty_folder(folder: str | Path) -> Path:
+    """``folder`` as a path; ``ValueError`` if it exists and is not an empty folder.
+
+    Writers of new datasets call it first: writing into an old dataset would mix its
+    frames with the new ones (a shorter run leaves the old frames beyond its end).
+    """
     root = Path(folder)
     if root.exists() and (not root.is_dir() or any(root.iterdir())):
         raise ValueError(f"{root}: exists and is not an empty folder")
+    return root
+
+
+def prepare_folder(folder: str | Path) -> Path:
+    """Create ``folder`` with ``color/`` and ``depth/``; ``ValueError`` if it holds files."""
+    root = require_empty_folder(folder)
     (root / "color").mkdir(parents=True, exist_ok=True)
     (root / "depth").mkdir(exist_ok=True)
     return root

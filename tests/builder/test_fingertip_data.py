@@ -211,6 +211,12 @@ def test_folder_writer_round_trip(tmp_path: Path) -> None:
     other = replace(other, intrinsics=INTRINSICS + 1)
     with pytest.raises(ValueError, match="same camera"):
         write_annotated_folder([_toy_example(0), other], tmp_path / "mixed")
+    # A second run into the same folder would mix old frames with new ones.
+    before = sorted(p.name for p in (tmp_path / "depth").iterdir())
+    with pytest.raises(ValueError, match="exists and is not an empty folder"):
+        write_annotated_folder([_toy_example(0)], tmp_path)
+    assert sorted(p.name for p in (tmp_path / "depth").iterdir()) == before
+    assert len((tmp_path / "groundtruth.jsonl").read_text().splitlines()) == 3
 
 
 @pytest.mark.gl

@@ -15,6 +15,8 @@ from tracker.fingertips.detector import FingertipDetector
 from tracker.fingertips.forest import load_forest
 
 REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real_depth" / "hmodel_andrii"
+REPO = Path(__file__).resolve().parents[2]
+HELDOUT = str(REPO / "configs" / "fingertips" / "heldout.toml")
 EVAL_KEYS = {
     "frames",
     "precision",
@@ -61,6 +63,7 @@ def run_glove(*args: str) -> subprocess.CompletedProcess:
         (["fingertips", "eval", str(REAL), "--pose-guess"], "need groundtruth.jsonl"),
         (["fingertips", "eval", ".", "--sheet", "scores.txt"], "expected a .png"),
         (["fingertips", "synth", "x.toml", "--out", "d", "--noise", "loud"], "invalid choice"),
+        (["fingertips", "synth", HELDOUT, "--out", str(REPO)], "exists and is not an empty"),
     ],
 )
 def test_bad_input_exits_2_with_one_line(capsys, args, message) -> None:
