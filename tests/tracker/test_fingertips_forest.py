@@ -189,7 +189,7 @@ def test_save_writes_the_given_path_atomically(tmp_path: Path, monkeypatch) -> N
     assert sorted(p.name for p in tmp_path.iterdir()) == ["forest.npz", "model.bin"]
     np.testing.assert_array_equal(load_forest(target).node_feature, first.node_feature)
 
-    def fail(*args, **kwargs):
+    def fail(*args: object, **kwargs: object) -> None:
         raise KeyboardInterrupt
 
     monkeypatch.setattr(np, "savez_compressed", fail)
