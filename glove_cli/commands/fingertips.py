@@ -238,8 +238,6 @@ def run_detect(args: argparse.Namespace) -> int:
 
 
 def run_eval(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     from tqdm import tqdm
 
     from tracker.fingertips.evaluation import (
@@ -261,8 +259,7 @@ def run_eval(args: argparse.Namespace) -> int:
     model, config = _load_model(args)
     data = read_annotated_depth(root, annotations=name)
     detections, ms_per_frame = run_detector(data, model, config=config, progress=tqdm)
-    metrics = fingertip_metrics(detections, data.tips_m, data.tips_px)
-    metrics = replace(metrics, ms_per_frame=ms_per_frame)
+    metrics = fingertip_metrics(detections, data.tips_m, data.tips_px, ms_per_frame=ms_per_frame)
     if args.sheet:
         _write_scored_sheet(Path(args.sheet), data, detections)
         print(f"wrote {args.sheet}", file=sys.stderr)
