@@ -476,20 +476,20 @@ def _draw_panel(
     canvas: NDArray[np.uint8],
     box: tuple[int, int, int, int],
     times_s: NDArray[np.float64],
+    span_s: float,
     values: NDArray[np.float64],
     errors: FrameErrors,
     label: str,
     color: tuple[int, int, int],
 ) -> None:
     left, top, right, bottom = box
-    span = max(float(times_s[-1] - times_s[0]), 1e-9)
 
     def x_of(t: float) -> int:
-        return round(left + (t - times_s[0]) / span * (right - left))
+        return round(left + (t - times_s[0]) / span_s * (right - left))
 
     finite = values[np.isfinite(values)]
     ceiling = _nice_ceiling(float(finite.max()) * 1.05 if len(finite) else 0.0)
-    half_step = 0.5 * (times_s[1] - times_s[0]) if len(times_s) > 1 else 0.5
+    half_step = 0.5 * (times_s[1] - times_s[0]) if len(times_s) > 1 else 0.5 * span_s
     for flags, shade in ((~errors.hand_visible, _HIDDEN), (errors.missed, _MISSED)):
         for t in times_s[flags]:
             cv2.rectangle(canvas, (x_of(t - half_step), top), (x_of(t + half_step), bottom),
@@ -552,15 +552,17 @@ def error_plot(
     canvas = np.full((height, width, 3), _WHITE, np.uint8)
     cv2.putText(canvas, title, (left, 27), _FONT, 0.7, _INK, 2, cv2.LINE_AA)
     times = errors.frames / fps
+    span = max(float(times[-1] - times[0]), 1.0 / fps)  # one frame still spans a frame period
     top = 40 + strip
     if thumbnails:
-        _draw_thumbnails(canvas, thumbnails, times, errors.frames, (left, 40, right, top - 20))
+        box = (left, 40, right, top - 20)
+        _draw_thumbnails(canvas, thumbnails, times, span, errors.frames, box)
     for name, label, color in _PANELS:
         box = (left, top, right, top + panel)
-        _draw_panel(canvas, box, times, getattr(errors, name), errors, label, color)
+        _draw_panel(canvas, box, times, span, getattr(errors, name), errors, label, color)
         top += panel + gap
-    for t in np.linspace(times[0], times[-1], 6):
-        x = round(left + (t - times[0]) / max(times[-1] - times[0], 1e-9) * (right - left))
+    for t in np.unique(np.linspace(times[0], times[-1], 6)):
+        x = round(left + (t - times[0]) / span * (right - left))
         cv2.putText(canvas, f"{t:.1f}", (x - 12, top - gap + 18), _FONT, 0.4, _INK, 1, cv2.LINE_AA)
     cv2.putText(canvas, "time [s]", (right - 70, height - 8), _FONT, 0.45, _INK, 1, cv2.LINE_AA)
     for x, shade, text in ((left, _MISSED, "missed"), (left + 110, _HIDDEN, "hand not visible")):
@@ -573,6 +575,7 @@ def _draw_thumbnails(
     canvas: NDArray[np.uint8],
     thumbnails: Mapping[int, NDArray[np.uint8]],
     times_s: NDArray[np.float64],
+    span_s: float,
     frames: NDArray[np.int64],
     box: tuple[int, int, int, int],
 ) -> None:
@@ -582,7 +585,6 @@ def _draw_thumbnails(
         return
     slot = (right - left) // len(order)
     height = bottom - top
-    span = max(float(times_s[-1] - times_s[0]), 1e-9)
     for index, frame in enumerate(order):
         image = as_array(f"thumbnails[{frame}]", thumbnails[frame], (None, None, 3), kind="u")
         scale = min(height / image.shape[0], (slot - 8) / image.shape[1])
@@ -592,7 +594,7 @@ def _draw_thumbnails(
         canvas[top : top + size[1], x0 : x0 + size[0]] = small
         cv2.rectangle(canvas, (x0, top), (x0 + size[0] - 1, top + size[1] - 1), _INK, 1)
         t = float(times_s[list(frames).index(frame)])
-        x_time = round(left + (t - times_s[0]) / span * (right - left))
+        x_time = round(left + (t - times_s[0]) / span_s * (right - left))
         cv2.line(canvas, (x0 + size[0] // 2, top + size[1]), (x_time, bottom + 20), _INK, 1,
                  cv2.LINE_AA)  # fmt: skip
 

@@ -202,6 +202,18 @@ def test_per_frame_csv_and_plot(tmp_path):
         error_plot(errors, fps=0.0)
 
 
+def test_plot_of_one_missed_frame(tmp_path):
+    """A one-frame sequence whose hand was missed still gets its picture, band and all."""
+    truth = truth_records(2)[:1]  # the last record of truth_records has no visible hand
+    write_jsonl(tmp_path / "groundtruth.jsonl", truth)
+    write_jsonl(tmp_path / "poses.jsonl", [pose_record(truth[0], found=False)])
+    errors = evaluate(tmp_path / "poses.jsonl", tmp_path / "groundtruth.jsonl").per_frame
+    picture = error_plot(errors, fps=30.0, thumbnails={0: np.zeros((60, 80, 3), np.uint8)})
+    missed_shade = (250, 205, 205)
+    first_panel = picture[200:350, 80:1170]  # below the thumbnail strip
+    assert np.all(first_panel == missed_shade, axis=2).mean() > 0.4
+
+
 def test_keyframe_indices_include_both_ends():
     assert keyframe_indices(100, 5) == [0, 25, 50, 74, 99]
     assert keyframe_indices(3, 6) == [0, 1, 2]
