@@ -19,6 +19,7 @@ from tracker.fingertips.features import project
 
 REAL_DEPTH = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "real_depth"
 INTRINSICS = np.array([300.0, 310.0, 31.5, 23.5])
+_TIP_NAN_XYZ = '{"xyz_m": [NaN, 0, 0.3], "uv_px": [3, 4]}'
 
 
 def _write_folder(root: Path, records: list[dict], name: str) -> None:
@@ -78,25 +79,57 @@ def test_missing_annotations_raise(tmp_path: Path) -> None:
 
 
 def test_bad_annotation_lines_and_depth_sizes_raise_one_line_errors(tmp_path: Path) -> None:
-    _write_folder(tmp_path, [{"frame": 0}, {"frame": 1}], "annotations.jsonl")
+    no_tips = {"fingertips": {}}
+    _write_folder(tmp_path, [{"frame": 0} | no_tips, {"frame": 1} | no_tips], "annotations.jsonl")
     path = tmp_path / "annotations.jsonl"
-    path.write_text('{"frame": 0}\nnot json\n')
+    path.write_text('{"frame": 0, "fingertips": {}}\nnot json\n')
     with pytest.raises(ValueError, match=r"annotations\.jsonl:2: not an annotation record"):
         read_annotated_depth(tmp_path)
     path.write_text('{"frame": 0, "fingertips": [1, 2]}\n')
-    with pytest.raises(ValueError, match=r"annotations\.jsonl:1: not an annotation record"):
+    with pytest.raises(ValueError, match=r"annotations\.jsonl:1: fingertips: expected an object"):
         read_annotated_depth(tmp_path)
     path.write_text("\n")
     with pytest.raises(ValueError, match="no annotated frames"):
         read_annotated_depth(tmp_path)
     # A depth image of another size than intrinsic.json says: the intrinsics would
     # put its points in the wrong place, so it is refused.
-    path.write_text('{"frame": 0}\n{"frame": 1}\n')
+    path.write_text('{"frame": 0, "fingertips": {}}\n{"frame": 1, "fingertips": {}}\n')
     cv2.imwrite(str(tmp_path / "depth" / "000001.png"), np.full((24, 32), 1000, np.uint16))
     with pytest.raises(
         ValueError, match=r"000001\.png: 32x24 pixels, but intrinsic\.json gives 64x48"
     ):
         read_annotated_depth(tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ('{"frame": 0}', "expected fingertips, keypoints_3d_m"),
+        ('{"frame": 0, "tips": {}}', "expected fingertips, keypoints_3d_m"),
+        ('{"frame": 0, "fingertips": {"pinky": null}}', "unknown finger 'pinky'"),
+        (f'{{"frame": 0, "fingertips": {{"thumb": {_TIP_NAN_XYZ}}}}}', "thumb.xyz_m: contains NaN"),
+        ('{"frame": 0, "fingertips": {"ring": {"xyz_m": [0, 0, 0.3]}}}', "'uv_px'"),
+        ('{"frame": 0.9, "fingertips": {}}', "frame: expected a whole number"),
+        ('{"frame": 0, "fingertips": {}}\n{"frame": 0, "fingertips": {}}', "annotated twice"),
+        ('{"frame": 0, "keypoints_3d_m": [[0, 0, 0.3]], "keypoints_2d_px": []}', "shape"),
+    ],
+)
+def test_annotations_that_would_change_the_scores_are_refused(
+    tmp_path: Path, line: str, message: str
+) -> None:
+    """Unknown names, half-given tips and repeated frames: an error, not dropped tips."""
+    _write_folder(tmp_path, [{"frame": 0, "fingertips": {}}], "annotations.jsonl")
+    (tmp_path / "annotations.jsonl").write_text(line + "\n")
+    with pytest.raises(ValueError, match=r"annotations\.jsonl:\d: .*" + message):
+        read_annotated_depth(tmp_path)
+
+
+def test_metrics_refuse_tips_with_only_one_position() -> None:
+    tips = np.zeros((1, 5, 3)) + [0.0, 0.0, 0.3]
+    tips_px = project(tips, INTRINSICS)
+    tips[0, 2] = np.nan
+    with pytest.raises(ValueError, match="both positions or neither"):
+        fingertip_metrics([[]], tips, tips_px)
 
 
 def test_metrics_known_values() -> None:

@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
+from glovedb._validate import as_array
 from tracker.fingertips.assignment import FINGER_NAMES
 from tracker.fingertips.detect import (
     DEFAULT_DETECTOR,
@@ -111,18 +112,49 @@ class FingertipMetrics:
         return asdict(self)
 
 
+def _coordinates(name: str, value: object, shape: tuple[int, ...]) -> NDArray[np.float64]:
+    return as_array(name, value, shape, np.float64, kind="fiu", finite=True)
+
+
 def _tips_of_record(record: dict) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Fingertips of one annotation record; NaN rows where a tip is not annotated.
+
+    A record gives ``fingertips`` (``{finger: {"xyz_m", "uv_px"}}``, a missing or null
+    finger is not annotated), or the 21 ``keypoints_3d_m`` and ``keypoints_2d_px``, or
+    ``"hand_visible": false``. Anything else (an unknown finger, a tip with only one
+    of its positions, non-finite values) raises ValueError: a silently dropped tip
+    would change the scores.
+    """
     tips_m = np.full((len(FINGER_NAMES), 3), np.nan)
     tips_px = np.full((len(FINGER_NAMES), 2), np.nan)
     if "fingertips" in record:
+        fingertips = record["fingertips"]
+        if not isinstance(fingertips, dict):
+            raise ValueError(f"fingertips: expected an object, got {fingertips!r}")
+        unknown = sorted(set(fingertips) - set(FINGER_NAMES))
+        if unknown:
+            raise ValueError(f"fingertips: unknown finger {unknown[0]!r}, expected {FINGER_NAMES}")
         for k, name in enumerate(FINGER_NAMES):
-            tip = record["fingertips"].get(name)
-            if tip is not None:
-                tips_m[k], tips_px[k] = tip["xyz_m"], tip["uv_px"]
-    elif "keypoints_3d_m" in record and record.get("hand_visible", True):
-        tips_m[:] = np.asarray(record["keypoints_3d_m"], dtype=np.float64)[list(MEDIAPIPE_TIPS)]
-        tips_px[:] = np.asarray(record["keypoints_2d_px"], dtype=np.float64)[list(MEDIAPIPE_TIPS)]
+            tip = fingertips.get(name)
+            if tip is None:
+                continue
+            tips_m[k] = _coordinates(f"fingertips.{name}.xyz_m", tip["xyz_m"], (3,))
+            tips_px[k] = _coordinates(f"fingertips.{name}.uv_px", tip["uv_px"], (2,))
+    elif "keypoints_3d_m" in record or "keypoints_2d_px" in record:
+        if record.get("hand_visible", True):
+            keypoints_m = _coordinates("keypoints_3d_m", record["keypoints_3d_m"], (21, 3))
+            keypoints_px = _coordinates("keypoints_2d_px", record["keypoints_2d_px"], (21, 2))
+            tips_m[:] = keypoints_m[list(MEDIAPIPE_TIPS)]
+            tips_px[:] = keypoints_px[list(MEDIAPIPE_TIPS)]
+    elif record.get("hand_visible", True) is not False:
+        raise ValueError('expected fingertips, keypoints_3d_m or "hand_visible": false')
     return tips_m, tips_px
+
+
+def _frame_number(value: object) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError(f"frame: expected a whole number >= 0, got {value!r}")
+    return value
 
 
 def read_annotated_depth(
@@ -160,10 +192,15 @@ def read_annotated_depth(
             continue
         try:
             record = json.loads(line)
-            frames.append(int(record["frame"]))
+            frame = _frame_number(record["frame"])
             frame_m, frame_px = _tips_of_record(record)
-        except (ValueError, KeyError, TypeError, IndexError, AttributeError) as error:
+        except (json.JSONDecodeError, KeyError, TypeError, AttributeError) as error:
             raise ValueError(f"{path}:{number}: not an annotation record ({error!r})") from error
+        except ValueError as error:
+            raise ValueError(f"{path}:{number}: {error}") from error
+        if frame in frames:
+            raise ValueError(f"{path}:{number}: frame {frame} is annotated twice")
+        frames.append(frame)
         tips_m.append(frame_m)
         tips_px.append(frame_px)
     if not frames:
@@ -269,6 +306,8 @@ def fingertip_metrics(
     """
     if not len(detections) == tips_m.shape[0] == tips_px.shape[0]:
         raise ValueError("detections, tips_m, tips_px: expected one entry per frame each")
+    if np.any(np.all(np.isfinite(tips_m), axis=2) != np.all(np.isfinite(tips_px), axis=2)):
+        raise ValueError("tips_m, tips_px: every tip needs both positions or neither")
     n_det = n_tip = matched_3d = matched_2d = 0
     errors_3d: list[float] = []
     errors_2d: list[float] = []
