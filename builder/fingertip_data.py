@@ -45,7 +45,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from builder.depth_noise import NOISE_PRESETS, apply_depth_noise, noise_preset
 from builder.render import GloveRenderer
-from builder.sequence import require_empty_folder
+from builder.sequence import staged_folder
 from glovedb import __version__
 from glovedb._validate import as_array, check_choice, dataclass_from_table
 from glovedb.camera import CameraIntrinsics
@@ -744,37 +744,57 @@ def write_annotated_folder(
     ------
     ValueError
         If ``folder`` exists and is not empty (checked before the first example is
-        drawn), or if the examples do not share one camera.
+        drawn), or if the examples do not share one camera. The folder is written under
+        a temporary name and renamed when complete (:func:`builder.sequence.staged_folder`),
+        so a failed or interrupted run leaves nothing behind.
     """
-    root = require_empty_folder(folder)
-    (root / "depth").mkdir(parents=True, exist_ok=True)
     camera: NDArray[np.float64] | None = None
     size: tuple[int, int] | None = None
     count = 0
-    with (
-        open(root / "groundtruth.jsonl", "w") as truth_file,
-        open(root / "annotations.jsonl", "w") as annotation_file,
-    ):
-        for frame, example in enumerate(examples):
-            if camera is None:
-                camera, size = example.intrinsics, example.depth_m.shape
-            elif not np.allclose(camera, example.intrinsics) or size != example.depth_m.shape:
-                raise ValueError("examples: every frame of a folder needs the same camera")
-            millimetres = np.rint(example.depth_m.astype(np.float64) * depth_scale)
-            depth = np.clip(millimetres, 0, np.iinfo(np.uint16).max).astype(np.uint16)
-            cv2.imwrite(str(root / "depth" / f"{frame:06d}.png"), depth)
-            truth, annotation = _record(frame, example)
-            truth_file.write(json.dumps(truth) + "\n")
-            annotation_file.write(json.dumps(annotation) + "\n")
-            count += 1
-    if camera is None or size is None:
-        raise ValueError("examples: expected at least one example")
-    fx, fy, cx, cy = camera
-    intrinsic = CameraIntrinsics(size[1], size[0], fx, fy, cx, cy)
-    (root / "intrinsic.json").write_text(json.dumps(intrinsic.to_open3d_json(), indent=1))
-    meta = {"depth_scale": depth_scale, "version": __version__, "settings": dict(settings or {})}
-    (root / "meta.json").write_text(json.dumps(meta, indent=1))
+    with staged_folder(folder) as root:
+        (root / "depth").mkdir()
+        with (
+            open(root / "groundtruth.jsonl", "w") as truth_file,
+            open(root / "annotations.jsonl", "w") as annotation_file,
+        ):
+            for frame, example in enumerate(examples):
+                if camera is None:
+                    camera, size = example.intrinsics, example.depth_m.shape
+                elif not np.allclose(camera, example.intrinsics) or size != example.depth_m.shape:
+                    raise ValueError("examples: every frame of a folder needs the same camera")
+                millimetres = np.rint(example.depth_m.astype(np.float64) * depth_scale)
+                depth = np.clip(millimetres, 0, np.iinfo(np.uint16).max).astype(np.uint16)
+                cv2.imwrite(str(root / "depth" / f"{frame:06d}.png"), depth)
+                truth, annotation = _record(frame, example)
+                truth_file.write(json.dumps(truth) + "\n")
+                annotation_file.write(json.dumps(annotation) + "\n")
+                count += 1
+        if camera is None or size is None:
+            raise ValueError("examples: expected at least one example")
+        fx, fy, cx, cy = camera
+        intrinsic = CameraIntrinsics(size[1], size[0], fx, fy, cx, cy)
+        (root / "intrinsic.json").write_text(json.dumps(intrinsic.to_open3d_json(), indent=1))
+        meta = {
+            "depth_scale": depth_scale,
+            "version": __version__,
+            "settings": dict(settings or {}),
+        }
+        (root / "meta.json").write_text(json.dumps(meta, indent=1))
     return count
+
+
+def require_one_camera(config: FingertipDataConfig) -> None:
+    """``ValueError`` unless every frame of ``config`` has the same camera.
+
+    An RGB-D folder has one ``intrinsic.json``, so a folder of rendered frames
+    (:func:`write_annotated_folder`) needs ``half_resolution_fraction`` 0 (all 640 x 480)
+    or 1 (all 320 x 240). Checked before rendering, not after the first mismatch.
+    """
+    if config.half_resolution_fraction not in (0.0, 1.0):
+        raise ValueError(
+            "half_resolution_fraction: a folder has one camera, so it must be 0 (all 640x480) "
+            f"or 1 (all 320x240) to write frames, got {config.half_resolution_fraction}"
+        )
 
 
 def load_data_config(path: str | Path, table: str = "data") -> FingertipDataConfig:

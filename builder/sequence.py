@@ -33,8 +33,11 @@ so a seed reproduces a sequence and its first frames do not depend on ``frames``
 from __future__ import annotations
 
 import json
+import shutil
+import tempfile
 import time
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, Literal
@@ -61,6 +64,9 @@ BACKGROUNDS: tuple[BackgroundKind, ...] = ("plain", "clutter", "table")
 PLAIN_RGB = (45, 45, 45)
 MAX_RANGE_M = 4.0
 """Farthest depth a background surface is measured at (a Kinect's range)."""
+MAX_SEQUENCE_FRAMES = 1_000_000
+"""Most frames of one rendered sequence (9 hours at 30 fps): their poses and keypoints
+are sampled into memory at once, about 1 kB per frame."""
 WOOD_RGB = (160, 150, 138)
 """Mean color of the table top, a pale oak."""
 MIN_GLOVE_CHROMA_DISTANCE = 0.4
@@ -586,12 +592,31 @@ def require_empty_folder(folder: str | Path) -> Path:
     return root
 
 
-def prepare_folder(folder: str | Path) -> Path:
-    """Create ``folder`` with ``color/`` and ``depth/``; ``ValueError`` if it holds files."""
+@contextmanager
+def staged_folder(folder: str | Path) -> Iterator[Path]:
+    """Write a new dataset folder under a temporary name, in place only once complete.
+
+    Yields a hidden sibling folder (``.NAME.partial-XXXX``) to write into. When the
+    block ends normally it is renamed to ``folder``; when it raises (a bad frame, an
+    interrupt) it is removed, so a failed run leaves neither a half-written dataset
+    nor a folder that the next run would refuse.
+
+    Raises
+    ------
+    ValueError
+        If ``folder`` exists and is not an empty folder (before anything is written).
+    """
     root = require_empty_folder(folder)
-    (root / "color").mkdir(parents=True, exist_ok=True)
-    (root / "depth").mkdir(exist_ok=True)
-    return root
+    root.parent.mkdir(parents=True, exist_ok=True)
+    partial = Path(tempfile.mkdtemp(prefix=f".{root.name}.partial-", dir=root.parent))
+    try:
+        yield partial
+        if root.exists():
+            root.rmdir()  # empty, checked above
+        partial.rename(root)
+    finally:
+        if partial.exists():
+            shutil.rmtree(partial, ignore_errors=True)
 
 
 def depth_to_png_units(depth_m: ArrayLike, depth_scale: float) -> NDArray[np.uint16]:
@@ -639,7 +664,8 @@ def render_sequence(
     ----------
     settings : SequenceSettings
     folder : str or Path
-        Created; must not hold files yet.
+        Created; must not hold files yet. Written under a temporary name and renamed
+        when complete (:func:`staged_folder`): a failed run leaves nothing behind.
     renderer : GloveRenderer, optional
         For the settings' camera; one with the default mesh is made (and closed) if
         not given.
@@ -656,31 +682,38 @@ def render_sequence(
     camera = load_camera(settings.camera)
     if renderer is not None and renderer.camera != camera:
         raise ValueError(f"renderer: expected camera {camera}, got {renderer.camera}")
-    root = prepare_folder(folder)
     count = len(sequence_times(trajectory, settings.frames))
-    own = renderer is None
-    active = renderer if renderer is not None else GloveRenderer(camera)
-    try:
-        frames: Iterable[SyntheticFrame] = render_frames(trajectory, settings, active)
-        if progress is not None:
-            frames = progress(iter(frames), count)
-        written, visible = write_frames(frames, root, depth_scale=settings.depth_scale)
-        hand_length = active.mesh.skeleton.hand_length_m
-    finally:
-        if own:
-            active.close()
-    save_intrinsics(camera, root / "intrinsic.json")
-    meta = {
-        "depth_scale": settings.depth_scale,
-        "fps": trajectory.fps,
-        "frames": written,
-        "visible_frames": visible,
-        "version": __version__,
-        "generator": "glove render-sequence",
-        "settings": settings.as_dict(),
-        "trajectory_file": str(trajectory_path),
-        "camera_intrinsics": asdict(camera),
-        "hand_length_m": hand_length,
-    }
-    (root / "meta.json").write_text(json.dumps(meta, indent=1))
-    return SequenceReport(str(root), written, visible, time.perf_counter() - start)
+    if count > MAX_SEQUENCE_FRAMES:
+        raise ValueError(
+            f"{count} frames: a sequence holds at most {MAX_SEQUENCE_FRAMES} "
+            "(its poses are sampled into memory at once); use --frames or a shorter trajectory"
+        )
+    with staged_folder(folder) as root:
+        (root / "color").mkdir()
+        (root / "depth").mkdir()
+        own = renderer is None
+        active = renderer if renderer is not None else GloveRenderer(camera)
+        try:
+            frames: Iterable[SyntheticFrame] = render_frames(trajectory, settings, active)
+            if progress is not None:
+                frames = progress(iter(frames), count)
+            written, visible = write_frames(frames, root, depth_scale=settings.depth_scale)
+            hand_length = active.mesh.skeleton.hand_length_m
+        finally:
+            if own:
+                active.close()
+        save_intrinsics(camera, root / "intrinsic.json")
+        meta = {
+            "depth_scale": settings.depth_scale,
+            "fps": trajectory.fps,
+            "frames": written,
+            "visible_frames": visible,
+            "version": __version__,
+            "generator": "glove render-sequence",
+            "settings": settings.as_dict(),
+            "trajectory_file": str(trajectory_path),
+            "camera_intrinsics": asdict(camera),
+            "hand_length_m": hand_length,
+        }
+        (root / "meta.json").write_text(json.dumps(meta, indent=1))
+    return SequenceReport(str(Path(folder)), written, visible, time.perf_counter() - start)

@@ -167,11 +167,17 @@ def run_synth(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from builder.fingertip_data import generate_examples, load_data_config, write_annotated_folder
+    from builder.fingertip_data import (
+        generate_examples,
+        load_data_config,
+        require_one_camera,
+        write_annotated_folder,
+    )
     from builder.sequence import require_empty_folder
 
     config = replace(load_data_config(args.config), **_data_overrides(args))
-    require_empty_folder(args.out)  # before the progress bar starts
+    require_one_camera(config)  # these two before the progress bar starts
+    require_empty_folder(args.out)
     examples = tqdm(generate_examples(config), total=config.n_images, desc="render", unit="img")
     count = write_annotated_folder(examples, args.out, settings={"data": asdict(config)})
     print(f"wrote {count} frames to {args.out}")

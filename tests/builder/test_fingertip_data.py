@@ -16,6 +16,7 @@ from builder.fingertip_data import (
     generate_examples,
     load_data_config,
     mirror_example,
+    require_one_camera,
     sample_scene,
     visible_tips,
     write_annotated_folder,
@@ -198,6 +199,13 @@ def _toy_example(frame: int) -> FingertipExample:
     return FingertipExample(depth, INTRINSICS, tips, keypoints, scene)
 
 
+def test_a_folder_needs_one_camera_and_that_is_checked_before_rendering() -> None:
+    require_one_camera(replace(CLEAN, half_resolution_fraction=0.0))
+    require_one_camera(replace(CLEAN, half_resolution_fraction=1.0))
+    with pytest.raises(ValueError, match="half_resolution_fraction: a folder has one camera"):
+        require_one_camera(replace(CLEAN, half_resolution_fraction=0.5))
+
+
 def test_folder_writer_round_trip(tmp_path: Path) -> None:
     count = write_annotated_folder([_toy_example(k) for k in range(3)], tmp_path)
     assert count == 3
@@ -211,6 +219,7 @@ def test_folder_writer_round_trip(tmp_path: Path) -> None:
     other = replace(other, intrinsics=INTRINSICS + 1)
     with pytest.raises(ValueError, match="same camera"):
         write_annotated_folder([_toy_example(0), other], tmp_path / "mixed")
+    assert not any("mixed" in p.name for p in tmp_path.iterdir())  # nothing half-written
     # A second run into the same folder would mix old frames with new ones.
     before = sorted(p.name for p in (tmp_path / "depth").iterdir())
     with pytest.raises(ValueError, match="exists and is not an empty folder"):

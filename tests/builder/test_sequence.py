@@ -29,6 +29,7 @@ from builder.sequence import (
     make_background,
     render_frames,
     resolve_trajectory,
+    staged_folder,
     trajectory_names,
 )
 from glovedb.camera import KINECT_V1
@@ -288,3 +289,21 @@ def test_a_hand_out_of_view_is_not_visible(renderer):
     frames = list(render_frames(trajectory, SequenceSettings("custom"), renderer))
     assert [f.truth.hand_visible for f in frames] == [True, False]
     assert not frames[1].hand_mask.any()
+
+
+def test_staged_folder_appears_only_when_complete(tmp_path):
+    with staged_folder(tmp_path / "done") as root:
+        (root / "a.txt").write_text("a")
+        assert not (tmp_path / "done").exists()
+    assert (tmp_path / "done" / "a.txt").read_text() == "a"
+    with pytest.raises(RuntimeError), staged_folder(tmp_path / "failed") as root:
+        (root / "a.txt").write_text("a")
+        raise RuntimeError("a frame failed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["done"]  # no partial folder either
+    (tmp_path / "empty").mkdir()
+    with staged_folder(tmp_path / "empty") as root:
+        (root / "b.txt").write_text("b")
+    assert (tmp_path / "empty" / "b.txt").exists()
+    with pytest.raises(ValueError, match="exists and is not an empty folder"):
+        with staged_folder(tmp_path / "done"):
+            pass

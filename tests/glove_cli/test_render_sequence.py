@@ -22,6 +22,7 @@ from tracker.evaluation import read_groundtruth
         (["--trajectory", "tr1", "--background", "forest"], "background: expected one of"),
         (["--trajectory", "tr1", "--noise", "film"], "invalid choice: 'film'"),
         (["--trajectory", "tr1", "--frames", "0"], "frames: expected at least 1"),
+        (["--trajectory", "tr1", "--frames", "100000000"], "a sequence holds at most 1000000"),
     ],
 )
 def test_bad_input_exits_2_with_one_line(capsys, tmp_path, args, message):
