@@ -48,6 +48,11 @@ def add_tracker_options(parser: argparse.ArgumentParser) -> None:
         help="lookup pull toward the previous frame's posture, pixels per radian "
         "(default 1; 0 turns it off)",
     )
+    parser.add_argument(
+        "--min-confidence",
+        type=float,
+        help="fits below this confidence mean no hand (default 0.02; 0 keeps every fit)",
+    )
 
 
 def make_tracker(args: argparse.Namespace) -> Tracker:
@@ -73,6 +78,10 @@ def make_tracker(args: argparse.Namespace) -> Tracker:
         if not args.temporal_prior >= 0:
             raise ValueError("--temporal-prior must be 0 or more")
         settings = replace(settings, temporal_prior_px=args.temporal_prior)
+    if args.min_confidence is not None:
+        if not 0 <= args.min_confidence <= 1:
+            raise ValueError(f"--min-confidence: expected 0 to 1, got {args.min_confidence}")
+        settings = replace(settings, min_confidence=args.min_confidence)
     colors = args.colors
     beside = default_table_path(args.db)
     if colors is None and beside.exists():

@@ -82,6 +82,19 @@ def test_bad_databases_and_inputs_exit_2(small_database, tmp_path):
         run_glove("build", str(tmp_path / "missing.toml"), "--out", out + ".h5"),
         "cannot read the config",
     )
+    assert_one_line_error(
+        run_glove(
+            "track",
+            str(sequence),
+            "--db",
+            str(small_database),
+            "--out",
+            out,
+            "--min-confidence",
+            "2",
+        ),
+        "--min-confidence: expected 0 to 1",
+    )
 
 
 @pytest.mark.gl

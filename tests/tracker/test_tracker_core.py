@@ -1,5 +1,7 @@
 """Tracker core: color table, point cloud, ICP, the whole pipeline on rendered frames."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -161,11 +163,21 @@ def test_tracker_finds_rendered_hands_and_reports_no_hand_without_glove(small_da
         bare = Frame(9, np.full((480, 640, 3), 90, np.uint8), np.full((480, 640), 0.7, np.float32),
                      KINECT_V1)  # fmt: skip
         empty_depth = Frame(10, rendering.color, np.zeros((480, 640), np.float32), KINECT_V1)
-        for frame in (bare, empty_depth):
+        # A red shirt and a blue sleeve: glove colors, but nothing looks up or fits.
+        colors = load_pattern().colors_rgb
+        clothes = np.full((480, 640, 3), 90, np.uint8)
+        clothes[200:400, 100:300], clothes[220:380, 320:420] = colors[0], colors[8]
+        shirt = Frame(11, clothes, np.full((480, 640), 0.7, np.float32), KINECT_V1)
+        for frame in (bare, empty_depth, shirt):
             result = tracker.track(frame)
             assert not result.hand_found
             assert result.as_record() == {"frame": frame.index, "hand_found": False,
                                           "timing_ms": result.as_record()["timing_ms"]}  # fmt: skip
+    # Without the confidence gate, the shirt is taken for a hand: the gate is what says no.
+    ungated = replace(settings, min_confidence=0.0)
+    with Tracker(small_database, settings=ungated) as tracker:
+        found = tracker.track(shirt)
+        assert found.hand_found and found.confidence < settings.min_confidence
 
 
 @pytest.mark.gl
