@@ -41,7 +41,16 @@ COMMANDS = (
     render_sequence,
 )
 # Errors that mean "the input or the request is wrong", not "the program is wrong".
-USER_ERRORS = (ValueError, TypeError, FileNotFoundError, IsADirectoryError, PermissionError)
+USER_ERRORS = (
+    ValueError,
+    TypeError,
+    FileNotFoundError,
+    FileExistsError,
+    IsADirectoryError,
+    NotADirectoryError,
+    PermissionError,
+    MemoryError,  # a request too large for this machine (frames, entries)
+)
 
 
 class UsageError(Exception):

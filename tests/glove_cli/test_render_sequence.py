@@ -43,6 +43,12 @@ def test_malformed_trajectory_file_and_busy_folder_exit_2(capsys, tmp_path):
     (busy / "x.txt").write_text("x")
     assert main(["render-sequence", "--trajectory", "tr1", "--out", str(busy)]) == 2
     assert "exists and is not an empty folder" in capsys.readouterr().err
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    for out in (a_file, a_file / "seq"):  # a file, and a folder under a file
+        assert main(["render-sequence", "--trajectory", "tr1", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("glove: error:") and len(err.strip().splitlines()) == 1
 
 
 @pytest.mark.gl
