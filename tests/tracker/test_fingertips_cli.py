@@ -173,6 +173,10 @@ def test_train_and_synth_on_a_tiny_config(tmp_path: Path) -> None:
     right = sum(r["hand"] == "right" and r["hand_visible"] for r in truth)
     assert json.loads(result.stdout)["pose_guess"]["frames"] == right
     assert json.loads(result.stdout)["detector"]["depth_band_m"] == 0.2
+    del truth[1]["rotation"]  # a later record without its pose: FILE:LINE, not a KeyError
+    (folder / "groundtruth.jsonl").write_text("".join(json.dumps(r) + "\n" for r in truth))
+    result = run_glove("fingertips", "eval", str(folder), "--model", str(model), "--pose-guess")
+    assert result.returncode == 2 and "groundtruth.jsonl:2" in result.stderr
     # Then only a peak verifier for that forest, with looser candidates.
     with open(config, "a") as stream:
         stream.write(

@@ -441,7 +441,7 @@ def evaluate_pose_guesses(
     detector: FingertipDetector,
     *,
     posture_rad: NDArray[np.float64] | None = None,
-    progress: Callable[[Iterable[dict]], Iterable[dict]] | None = None,
+    progress: Callable[[Iterable[int]], Iterable[int]] | None = None,
 ) -> PoseGuessMetrics:
     """Score pose guesses on a rendered folder whose ``groundtruth.jsonl`` has poses.
 
@@ -453,33 +453,38 @@ def evaluate_pose_guesses(
     posture_rad : (20,) or (P, 20) float, optional
         Postures offered to the guess (default: the detector's, the named postures).
     progress : callable, optional
-        Wraps the record iterable (e.g. ``tqdm.tqdm``).
+        Wraps the iterable of scored record indices (e.g. ``tqdm.tqdm``).
 
     Raises
     ------
     ValueError
-        If ``groundtruth.jsonl`` is missing or has no poses.
+        If ``groundtruth.jsonl`` is missing, or a line of it lacks a pose field
+        (:func:`tracker.evaluation.read_groundtruth`).
     """
     from glovedb.hand_model import make_skeleton
     from glovedb.rotations import geodesic_angle
+    from tracker.evaluation import read_groundtruth
     from tracker.fingertips.sequence import open_depth_sequence
 
     root = Path(folder)
     path = root / "groundtruth.jsonl"
     if not path.is_file():
         raise ValueError(f"{root}: pose guesses need groundtruth.jsonl (a rendered folder)")
-    records = [json.loads(line) for line in path.read_text().splitlines() if line]
-    if records and "rotation" not in records[0]:
-        raise ValueError(f"{path}: no rotation and translation_m to score pose guesses with")
+    truth = read_groundtruth(path)  # every line's pose fields, FILE:LINE on errors
+    # The fields the tracker's ground truth does not have: which hand, and its length.
+    extras = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
     sequence = open_depth_sequence(root)
     rows, elapsed = [], 0.0
     usable = [
-        r for r in records if r.get("hand_visible", True) and r.get("hand", "right") == "right"
+        k
+        for k, extra in enumerate(extras)
+        if truth.hand_visible[k] and extra.get("hand", "right") == "right"
     ]
-    for record in progress(usable) if progress is not None else usable:
-        depth = sequence.read_depth(int(record["frame"]))
+    for k in progress(usable) if progress is not None else usable:
+        depth = sequence.read_depth(int(truth.frames[k]))
         detections = detector.detect(depth, sequence.intrinsics)
-        skeleton = make_skeleton(record["hand_length_m"]) if "hand_length_m" in record else None
+        length = extras[k].get("hand_length_m")
+        skeleton = make_skeleton(float(length)) if length is not None else None
         started = time.perf_counter()
         guess = detector.guess_pose(
             detections, depth, sequence.intrinsics, posture_rad=posture_rad, skeleton=skeleton
@@ -487,12 +492,14 @@ def evaluate_pose_guesses(
         if guess is None:
             continue
         elapsed += time.perf_counter() - started
-        keypoints = np.asarray(record["keypoints_3d_m"], dtype=np.float64)
         rows.append(
             (
-                float(np.degrees(geodesic_angle(guess.rotation, record["rotation"]))),
-                1000.0 * float(np.linalg.norm(guess.translation_m - record["translation_m"])),
-                1000.0 * float(np.linalg.norm(guess.keypoints_3d_m - keypoints, axis=1).mean()),
+                float(np.degrees(geodesic_angle(guess.rotation, truth.rotation[k]))),
+                1000.0 * float(np.linalg.norm(guess.translation_m - truth.translation_m[k])),
+                1000.0
+                * float(
+                    np.linalg.norm(guess.keypoints_3d_m - truth.keypoints_3d_m[k], axis=1).mean()
+                ),
             )
         )
     errors = np.array(rows).reshape(-1, 3)
