@@ -13,6 +13,7 @@ import json
 import math
 import sys
 import time
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -152,7 +153,7 @@ def run_train(args: argparse.Namespace) -> int:
     recipe = load_recipe(args.config, **_data_overrides(args))
     base = load_forest(args.forest) if args.forest else None
     started = time.perf_counter()
-    forest = train_from_recipe(recipe, progress=True, forest=base)
+    forest = train_from_recipe(recipe, progress=sys.stderr.isatty(), forest=base)
     save_forest(forest, out)
     size_mb = out.stat().st_size / 1e6
     print(
@@ -165,8 +166,6 @@ def run_train(args: argparse.Namespace) -> int:
 def run_synth(args: argparse.Namespace) -> int:
     from dataclasses import asdict, replace
 
-    from tqdm import tqdm
-
     from builder.fingertip_data import (
         generate_examples,
         load_data_config,
@@ -178,10 +177,18 @@ def run_synth(args: argparse.Namespace) -> int:
     config = replace(load_data_config(args.config), **_data_overrides(args))
     require_one_camera(config)  # these two before the progress bar starts
     require_empty_folder(args.out)
-    examples = tqdm(generate_examples(config), total=config.n_images, desc="render", unit="img")
+    rendered = generate_examples(config)
+    examples = _progress(rendered, total=config.n_images, desc="render", unit="img")
     count = write_annotated_folder(examples, args.out, settings={"data": asdict(config)})
     print(f"wrote {count} frames to {args.out}")
     return 0
+
+
+def _progress(iterable: Iterable[Any], **options: Any) -> Iterable[Any]:
+    """A progress bar on standard error, shown only on a terminal (as track and build do)."""
+    from tqdm import tqdm
+
+    return tqdm(iterable, disable=None, file=sys.stderr, **options)
 
 
 def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
@@ -205,7 +212,6 @@ def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
 
 def run_detect(args: argparse.Namespace) -> int:
     import cv2
-    from tqdm import tqdm
 
     from tracker.fingertips.detector import FingertipDetector
     from tracker.fingertips.sequence import open_depth_sequence
@@ -220,7 +226,7 @@ def run_detect(args: argparse.Namespace) -> int:
     tiles = []
     elapsed = 0.0
     with open(out / "fingertips.jsonl", "w") as stream:
-        for frame in tqdm(sequence.frames, desc="detect", unit="frame"):
+        for frame in _progress(sequence.frames, desc="detect", unit="frame"):
             depth = sequence.read_depth(frame)
             started = time.perf_counter()
             record = detector.record(frame, depth, sequence.intrinsics, pose_guess=args.pose_guess)
@@ -244,8 +250,6 @@ def run_detect(args: argparse.Namespace) -> int:
 
 
 def run_eval(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from tracker.fingertips.evaluation import (
         fingertip_metrics,
         read_annotated_depth,
@@ -264,7 +268,7 @@ def run_eval(args: argparse.Namespace) -> int:
         raise ValueError(f"--sheet: expected a .png (or .jpg) file name, got {args.sheet}")
     model, config = _load_model(args)
     data = read_annotated_depth(root, annotations=name)
-    detections, ms_per_frame = run_detector(data, model, config=config, progress=tqdm)
+    detections, ms_per_frame = run_detector(data, model, config=config, progress=_progress)
     metrics = fingertip_metrics(detections, data.tips_m, data.tips_px, ms_per_frame=ms_per_frame)
     if args.sheet:
         _write_scored_sheet(Path(args.sheet), data, detections)
@@ -290,7 +294,7 @@ def run_eval(args: argparse.Namespace) -> int:
         from tracker.fingertips.evaluation import evaluate_pose_guesses
 
         detector = FingertipDetector(model, config=config)
-        guesses = evaluate_pose_guesses(root, detector, progress=tqdm)
+        guesses = evaluate_pose_guesses(root, detector, progress=_progress)
         result["pose_guess"] = guesses.as_dict()
     if args.json:
         print(json.dumps(_finite_or_none(result)))
