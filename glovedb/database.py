@@ -107,6 +107,20 @@ class GloveDatabase(Closing):
             shape = file[f"tiny/{size}"].shape
             if shape != (entries, size, size):
                 raise ValueError(f"{self.path}: /tiny/{size} has shape {shape}")
+        ids = {}
+        for name, count in (("posture_id", postures), ("view_id", views)):
+            ids[name] = file[f"entries/{name}"][()]
+            if len(ids[name]) and (ids[name].min() < 0 or ids[name].max() >= count):
+                raise ValueError(
+                    f"{self.path}: damaged database, entries/{name} outside 0..{count - 1}"
+                )
+        # Every entry is seen from its view: its rotation is the view's, a rotation.
+        view_rotations = file["views/rotation"][()].astype(np.float64)
+        gram = np.einsum("nji,njk->nik", view_rotations, view_rotations)
+        if not np.allclose(gram, np.eye(3), atol=1e-4) or not np.array_equal(
+            file["entries/rotation"][()], file["views/rotation"][()][ids["view_id"]]
+        ):
+            raise ValueError(f"{self.path}: damaged database, entry rotations are not its views'")
 
     # Metadata ------------------------------------------------------------------
 

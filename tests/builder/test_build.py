@@ -116,6 +116,21 @@ def test_an_unfinished_file_is_not_a_database(small_database, tmp_path):
     truncated.write_bytes(small_database.read_bytes()[:5000])
     with pytest.raises(ValueError, match="not a readable HDF5"):
         GloveDatabase(truncated)
+    # Damage that the shapes do not show: an entry pointing past the postures (an
+    # IndexError in the middle of tracking) and zeroed rotations (a 173-degree error).
+    damages = [
+        ("entries/posture_id", "posture_id outside 0..1"),
+        ("entries/rotation", "entry rotations are not its views'"),
+    ]
+    for dataset, message in damages:
+        damaged = tmp_path / f"{dataset.replace('/', '_')}.h5"
+        damaged.write_bytes(small_database.read_bytes())
+        with h5py.File(damaged, "r+") as file:
+            values = file[dataset][()]
+            values[-1] = 2 if dataset.endswith("id") else 0
+            file[dataset][...] = values
+        with pytest.raises(ValueError, match=message):
+            GloveDatabase(damaged)
 
 
 def test_rolling_pixels_equals_rendering_a_rolled_camera():
