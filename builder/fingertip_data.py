@@ -764,7 +764,8 @@ def write_annotated_folder(
                     raise ValueError("examples: every frame of a folder needs the same camera")
                 millimetres = np.rint(example.depth_m.astype(np.float64) * depth_scale)
                 depth = np.clip(millimetres, 0, np.iinfo(np.uint16).max).astype(np.uint16)
-                cv2.imwrite(str(root / "depth" / f"{frame:06d}.png"), depth)
+                if not cv2.imwrite(str(root / "depth" / f"{frame:06d}.png"), depth):
+                    raise ValueError(f"{folder}: could not write the depth of frame {frame}")
                 truth, annotation = _record(frame, example)
                 truth_file.write(json.dumps(truth) + "\n")
                 annotation_file.write(json.dumps(annotation) + "\n")

@@ -191,6 +191,14 @@ def _progress(iterable: Iterable[Any], **options: Any) -> Iterable[Any]:
     return tqdm(iterable, disable=None, file=sys.stderr, **options)
 
 
+def _write_png(path: Path, rgb: Any) -> None:
+    """Write an RGB picture; ``ValueError`` naming the file if it cannot be written."""
+    import cv2
+
+    if not cv2.imwrite(str(path), rgb[..., ::-1]):
+        raise ValueError(f"{path}: could not write the picture")
+
+
 def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
     from dataclasses import replace
 
@@ -211,7 +219,6 @@ def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
 
 
 def run_detect(args: argparse.Namespace) -> int:
-    import cv2
 
     from tracker.fingertips.detector import FingertipDetector
     from tracker.fingertips.sequence import open_depth_sequence
@@ -221,6 +228,12 @@ def run_detect(args: argparse.Namespace) -> int:
     sequence = open_depth_sequence(args.input)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    # An earlier run's outputs are replaced, not mixed with these (a shorter run would
+    # leave its overlays beyond the new frames).
+    stale = [out / "contact_sheet.png", *(out / "overlay").glob("[0-9]*.png")]
+    for path in stale:
+        if path.is_file():
+            path.unlink()
     if not args.sheet:
         (out / "overlay").mkdir(exist_ok=True)
     tiles = []
@@ -236,9 +249,9 @@ def run_detect(args: argparse.Namespace) -> int:
             if args.sheet:
                 tiles.append(picture)
             else:
-                cv2.imwrite(str(out / "overlay" / f"{frame:06d}.png"), picture[..., ::-1])
+                _write_png(out / "overlay" / f"{frame:06d}.png", picture)
     if args.sheet:
-        cv2.imwrite(str(out / "contact_sheet.png"), contact_sheet(tiles)[..., ::-1])
+        _write_png(out / "contact_sheet.png", contact_sheet(tiles))
     n = len(sequence.frames)
     count = sum(1 for _ in open(out / "fingertips.jsonl"))
     print(
@@ -436,5 +449,4 @@ def _write_scored_sheet(path: Path, data: Any, detections: list[Any]) -> None:
         )
         tiles.append(tile)
     path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), contact_sheet(tiles)[..., ::-1]):
-        raise ValueError(f"--sheet: could not write {path}")
+    _write_png(path, contact_sheet(tiles))

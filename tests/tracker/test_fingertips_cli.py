@@ -102,6 +102,26 @@ def test_detect_writes_a_record_and_an_overlay_per_frame(tmp_path: Path, capsys)
     assert all(json.loads(line)["pose_guess"] is None for line in lines)  # < 3 detections
     assert main(["fingertips", "detect", str(tmp_path / "seq"), "--out", str(out), "--sheet"]) == 0
     assert cv2.imread(str(out / "contact_sheet.png")).shape == (60, 3 * 80, 3)
+    assert not (out / "overlay").exists() or not any((out / "overlay").iterdir())
+
+
+def test_detect_replaces_an_earlier_run_and_refuses_odd_names(tmp_path: Path, capsys) -> None:
+    _write_folder(tmp_path / "long", n_frames=3)
+    _write_folder(tmp_path / "short", n_frames=1)
+    out = tmp_path / "out"
+    assert main(["fingertips", "detect", str(tmp_path / "long"), "--out", str(out)]) == 0
+    assert main(["fingertips", "detect", str(tmp_path / "short"), "--out", str(out)]) == 0
+    assert sorted(p.name for p in (out / "overlay").iterdir()) == ["000000.png"]
+    # An overlay that cannot be written is an error, not a silent gap.
+    (out / "overlay" / "000000.png").unlink()
+    (out / "overlay" / "000000.png").mkdir()
+    assert main(["fingertips", "detect", str(tmp_path / "short"), "--out", str(out)]) == 2
+    assert "000000.png: could not write the picture" in capsys.readouterr().err
+    # Frames are read back by their six-digit names: other numbered names are refused.
+    depth = tmp_path / "short" / "depth"
+    (depth / "000000.png").rename(depth / "0000000.png")
+    assert main(["fingertips", "detect", str(tmp_path / "short"), "--out", str(out)]) == 2
+    assert "0000000.png: depth images must be named by six-digit" in capsys.readouterr().err
 
 
 def test_eval_sheet_draws_every_frame_and_marks_tips(tmp_path: Path, capsys) -> None:

@@ -54,6 +54,8 @@ class DepthSequence:
             size ``intrinsic.json`` gives (the intrinsics would not fit its pixels).
         """
         path = self.depth_path(frame)
+        if not path.is_file():
+            raise ValueError(f"{path}: no depth image for frame {frame}")
         image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if image is None or image.dtype != np.uint16 or image.ndim != 2:
             raise ValueError(f"{path}: expected a 16-bit single-channel depth PNG")
@@ -101,6 +103,18 @@ def read_depth_scale(folder: str | os.PathLike[str]) -> float:
     return scale
 
 
+def _frame_number(path: Path) -> int:
+    """The frame a depth file holds; ``ValueError`` unless named ``NNNNNN.png``.
+
+    Frames are read back by their six-digit name, so ``5.png`` or ``0000005.png``
+    would be read as another file or not at all.
+    """
+    frame = int(path.stem)
+    if path.name != f"{frame:06d}.png":
+        raise ValueError(f"{path}: depth images must be named by six-digit frame numbers")
+    return frame
+
+
 def open_depth_sequence(folder: str | os.PathLike[str]) -> DepthSequence:
     """Index the depth frames of an RGB-D folder.
 
@@ -114,7 +128,7 @@ def open_depth_sequence(folder: str | os.PathLike[str]) -> DepthSequence:
         raise ValueError(f"{root}: not a folder")
     intrinsics, size = read_intrinsics(root)
     names = sorted((root / "depth").glob("*.png")) if (root / "depth").is_dir() else []
-    frames = tuple(int(p.stem) for p in names if p.stem.isdigit())
+    frames = tuple(sorted(_frame_number(path) for path in names if path.stem.isdigit()))
     if not frames:
         raise ValueError(f"{root}: no depth/NNNNNN.png frames")
     return DepthSequence(root, intrinsics, size, read_depth_scale(root), frames)
