@@ -71,6 +71,19 @@ class RunSummary:
         }
 
 
+def _remove_earlier_outputs(folder: Path) -> None:
+    """Delete what an earlier run wrote into ``folder``, so that no output of it (an
+    overlay or BVH this run does not write) passes for this run's."""
+    for name in (POSES_FILE, "overlay.mp4", "hand.bvh", "timing.json"):
+        (folder / name).unlink(missing_ok=True)
+    frames = folder / "overlay_frames"  # VideoWriter's PNG fallback
+    if frames.is_dir():
+        for path in frames.glob("[0-9]*.png"):
+            path.unlink()
+        if not any(frames.iterdir()):
+            frames.rmdir()
+
+
 def track_source(
     source: Source,
     tracker: Tracker,
@@ -100,6 +113,7 @@ def track_source(
     """
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
+    _remove_earlier_outputs(folder)
     started = time.perf_counter()
     fps = source.fps or 30.0
     frames: Iterator[Frame] = iter(source)

@@ -52,6 +52,12 @@ def test_frames_without_a_glove_give_no_hand_on_every_frame(small_database, tmp_
         assert [r["frame"] for r in records] == [0, 1, 2]
         assert not any(r["hand_found"] for r in records)
         assert json.loads(result.stdout)["hand_found"] == 0
+    # A second run into the same folder leaves none of the first run's outputs behind.
+    (out / "overlay.mp4").write_bytes(b"an earlier run's video")
+    (out / "hand.bvh").write_text("an earlier run's motion")
+    argv = ["--db", str(small_database), "--out", str(out), "--no-overlay", "--no-bvh"]
+    assert run_glove("track", str(sequence), *argv).returncode == 0
+    assert sorted(p.name for p in out.iterdir()) == ["poses.jsonl", "timing.json"]
 
 
 @pytest.mark.gl
