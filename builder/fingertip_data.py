@@ -191,9 +191,28 @@ class FingertipDataConfig:
             low, high = getattr(self, name)
             if not low <= high:
                 raise ValueError(f"{name}: expected min <= max, got {(low, high)}")
-        for name in ("curl_fraction", "curl_finger_probability", "curl_palm_fraction"):
+        shares = (
+            "half_resolution_fraction", "facing_fraction", "offcentre_fraction",
+            "plane_probability", "half_plane_probability", "mirror_probability",
+            "forearm_probability", "curl_fraction", "curl_finger_probability",
+            "curl_palm_fraction",
+        )  # fmt: skip
+        for name in shares:
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name}: expected a share in [0, 1], got {getattr(self, name)}")
+        if self.seed < 0:
+            raise ValueError(f"seed: expected 0 or more, got {self.seed}")
+        if not (2 <= self.width <= 4096 and 2 <= self.height <= 4096):
+            raise ValueError(
+                f"width, height: expected 2 to 4096 pixels, got {self.width}x{self.height}"
+            )
+        if not (self.fx > 0 and self.fy > 0):
+            raise ValueError(f"fx, fy: expected positive focal lengths, got {self.fx}, {self.fy}")
+        for name, (least, most) in (("distance_range_m", (0.05, 10.0)),
+                                    ("hand_length_range_m", (0.05, 0.5))):  # fmt: skip
+            low, high = getattr(self, name)
+            if not least <= low <= high <= most:
+                raise ValueError(f"{name}: expected within [{least}, {most}] m, got {(low, high)}")
         if self.surface_tip_depth_m and not (
             self.surface_tip_depth_m > self.occlusion_tolerance_m >= 0
         ):

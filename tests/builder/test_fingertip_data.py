@@ -178,6 +178,19 @@ def test_config_checks_and_toml(tmp_path: Path) -> None:
         FingertipDataConfig(curl_fraction=1.5)
     with pytest.raises(ValueError, match="curl_pip_range_deg"):
         FingertipDataConfig(curl_pip_range_deg=(100.0, 90.0))
+    bad_values = {
+        "mirror_probability": 5.0,  # every share is in [0, 1]
+        "plane_probability": -1.0,
+        "half_resolution_fraction": 2.0,
+        "seed": -1,
+        "width": 0,
+        "fx": -525.0,
+        "distance_range_m": (0.0, 0.0),
+        "hand_length_range_m": (5.0, 6.0),  # metres, not a hand
+    }
+    for name, value in bad_values.items():
+        with pytest.raises(ValueError, match=name.split("_range")[0]):
+            FingertipDataConfig(**{name: value})
     path = tmp_path / "data.toml"
     path.write_text('[data]\nn_images = 7\nnoise = ["none"]\n')
     assert load_data_config(path) == FingertipDataConfig(n_images=7, noise=("none",))

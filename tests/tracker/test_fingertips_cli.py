@@ -60,6 +60,7 @@ def run_glove(*args: str) -> subprocess.CompletedProcess:
         (["fingertips", "train", "/no/config.toml", "--out", "m.npz"], "cannot read config"),
         (["fingertips", "train", "/no/config.toml", "--out", "m.txt"], "ends in .npz"),
         (["fingertips", "eval", ".", "--min-tip-probability", "2"], "expected a probability"),
+        (["fingertips", "eval", ".", "--c-thr", "inf"], "expected a positive, finite"),
         (["fingertips", "eval", str(REAL), "--pose-guess"], "need groundtruth.jsonl"),
         (["fingertips", "eval", ".", "--sheet", "scores.txt"], "expected a .png"),
         (["fingertips", "synth", "x.toml", "--out", "d", "--noise", "loud"], "invalid choice"),

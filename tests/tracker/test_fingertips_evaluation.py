@@ -91,6 +91,11 @@ def test_bad_annotation_lines_and_depth_sizes_raise_one_line_errors(tmp_path: Pa
     path.write_text("\n")
     with pytest.raises(ValueError, match="no annotated frames"):
         read_annotated_depth(tmp_path)
+    path.write_text('{"frame": 0, "fingertips": {}}\n')
+    (tmp_path / "meta.json").write_text('{"depth_scale": Infinity}')  # all depth would be 0
+    with pytest.raises(ValueError, match="depth_scale must be positive and finite"):
+        read_annotated_depth(tmp_path)
+    (tmp_path / "meta.json").write_text('{"depth_scale": 4000}')
     # A depth image of another size than intrinsic.json says: the intrinsics would
     # put its points in the wrong place, so it is refused.
     path.write_text('{"frame": 0, "fingertips": {}}\n{"frame": 1, "fingertips": {}}\n')

@@ -173,6 +173,16 @@ def test_load_names_a_missing_or_corrupt_member(tmp_path: Path) -> None:
     np.savez(tmp_path / "partial.npz", **arrays)
     with pytest.raises(ValueError, match=r"partial\.npz: damaged .*node_offset_m"):
         load_forest(tmp_path / "partial.npz")
+    # Members that load but hold values no model has: NaN leaves, settings that are not JSON.
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    nan_leaves = dict(arrays, node_probability=np.full_like(arrays["node_probability"], np.nan))
+    np.savez(tmp_path / "nan.npz", **nan_leaves)
+    with pytest.raises(ValueError, match=r"nan\.npz: damaged .*node_probability: contains NaN"):
+        load_forest(tmp_path / "nan.npz")
+    np.savez(tmp_path / "settings.npz", **dict(arrays, settings_json=np.array("{not json")))
+    with pytest.raises(ValueError, match=r"settings\.npz: damaged .*settings_json: not JSON"):
+        load_forest(tmp_path / "settings.npz")
     # Flip bytes inside the stored members (not the archive's directory at the end).
     damaged = bytearray(path.read_bytes())
     for i in range(len(damaged) // 4, len(damaged) // 2):

@@ -85,3 +85,22 @@ def test_detection_is_frozen() -> None:
     detection = Detection(1.0, 2.0, 0.0, 0.0, 0.4, 5.0)
     with pytest.raises(AttributeError):
         detection.confidence = 1.0  # type: ignore[misc]
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        ("min_probability", 5.0),
+        ("min_probability", -5.0),
+        ("bandwidth_m", 0.0),
+        ("vote_unit_area_m2", float("inf")),
+        ("min_separation_m", -0.01),
+        ("seed_fraction", 0.0),
+        ("max_seeds", 0),
+        ("iterations", 0),
+    ],
+)
+def test_voting_settings_out_of_range_are_refused(name: str, value: float) -> None:
+    """A model trained with min_probability 5 would never detect anything."""
+    with pytest.raises(ValueError, match=name):
+        VotingConfig(**{name: value})

@@ -105,8 +105,8 @@ class DetectorConfig:
     voting: VotingConfig = DEFAULT_VOTING
 
     def __post_init__(self) -> None:
-        if not self.c_thr > 0:
-            raise ValueError(f"c_thr: expected a positive threshold, got {self.c_thr}")
+        if not 0 < self.c_thr < math.inf:
+            raise ValueError(f"c_thr: expected a positive, finite threshold, got {self.c_thr}")
         if self.stride < 1:
             raise ValueError(f"stride: expected at least 1, got {self.stride}")
         if self.pixel_spacing_m < 0:

@@ -152,10 +152,15 @@ class ForestPrediction:
 
 def _check_forest(forest: FingertipForest) -> None:
     n = forest.node_feature.shape[0]
-    as_array("node_probability", forest.node_probability, (n,))
-    as_array("node_offset_m", forest.node_offset_m, (n, 3))
-    as_array("offsets_m", forest.offsets_m, (None, 2, 2))
+    as_array("node_probability", forest.node_probability, (n,), finite=True)
+    as_array("node_offset_m", forest.node_offset_m, (n, 3), finite=True)
+    as_array("node_threshold", forest.node_threshold, (n,), finite=True)
+    as_array("offsets_m", forest.offsets_m, (None, 2, 2), finite=True)
     check_tree_table(forest, forest.offsets_m.shape[0])
+    try:
+        json.loads(forest.settings_json)
+    except ValueError as error:
+        raise ValueError(f"settings_json: not JSON ({error})") from error
 
 
 def save_forest(forest: FingertipForest, path: str | os.PathLike[str]) -> None:
@@ -253,20 +258,24 @@ def _forest_from_archive(data: Any, path: str) -> FingertipForest:
             f"this code reads {', '.join(map(str, READABLE_VERSIONS))}"
         )
     near, far = (float(x) for x in data["depth_range_m"])
-    return FingertipForest(
-        offsets_m=data["offsets_m"].astype(np.float32),
-        depth_range_m=(near, far),
-        tree_roots=data["tree_roots"].astype(np.int32),
-        node_feature=data["node_feature"].astype(np.int32),
-        node_threshold=data["node_threshold"].astype(np.float32),
-        node_left=data["node_left"].astype(np.int32),
-        node_right=data["node_right"].astype(np.int32),
-        node_probability=data["node_probability"].astype(np.float32),
-        node_offset_m=data["node_offset_m"].astype(np.float32),
-        settings_json=str(data["settings_json"]),
-        version=str(data["version"]),
-        verifier=_read_verifier(data, path),
-    )
+    verifier = _read_verifier(data, path)
+    try:
+        return FingertipForest(
+            offsets_m=data["offsets_m"].astype(np.float32),
+            depth_range_m=(near, far),
+            tree_roots=data["tree_roots"].astype(np.int32),
+            node_feature=data["node_feature"].astype(np.int32),
+            node_threshold=data["node_threshold"].astype(np.float32),
+            node_left=data["node_left"].astype(np.int32),
+            node_right=data["node_right"].astype(np.int32),
+            node_probability=data["node_probability"].astype(np.float32),
+            node_offset_m=data["node_offset_m"].astype(np.float32),
+            settings_json=str(data["settings_json"]),
+            version=str(data["version"]),
+            verifier=verifier,
+        )
+    except ValueError as error:
+        raise ValueError(f"{path}: damaged {FORMAT_NAME} file ({error})") from error
 
 
 def apply_features(forest: FingertipForest, features: ArrayLike) -> NDArray[np.int32]:

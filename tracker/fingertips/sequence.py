@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,8 +99,8 @@ def read_depth_scale(folder: str | os.PathLike[str]) -> float:
         scale = float(json.loads(path.read_text()).get("depth_scale", 1000.0))
     except (ValueError, TypeError, AttributeError) as error:
         raise ValueError(f"{path}: cannot read depth_scale ({error})") from error
-    if not scale > 0:
-        raise ValueError(f"{path}: depth_scale must be positive, got {scale}")
+    if not 0 < scale < math.inf:
+        raise ValueError(f"{path}: depth_scale must be positive and finite, got {scale}")
     return scale
 
 

@@ -10,6 +10,7 @@ of three 5 mm x 5 mm patches of surely-fingertip surface agreeing on one point.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,6 +51,20 @@ class VotingConfig:
     seed_fraction: float = 0.25
     max_seeds: int = 64
     iterations: int = 8
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.min_probability <= 1:
+            raise ValueError(f"min_probability: expected a probability, got {self.min_probability}")
+        for name in ("vote_unit_area_m2", "bandwidth_m"):
+            if not 0 < getattr(self, name) < math.inf:
+                raise ValueError(f"{name}: expected a positive size, got {getattr(self, name)}")
+        if not 0 <= self.min_separation_m < math.inf:
+            raise ValueError(f"min_separation_m: expected >= 0, got {self.min_separation_m}")
+        if not 0 < self.seed_fraction <= 1:
+            raise ValueError(f"seed_fraction: expected a share in (0, 1], got {self.seed_fraction}")
+        for name in ("max_seeds", "iterations"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected at least 1, got {getattr(self, name)}")
 
 
 DEFAULT_VOTING = VotingConfig()
