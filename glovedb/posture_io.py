@@ -23,7 +23,7 @@ def load_postures(path: str | Path) -> NDArray[np.float64]:
     ------
     ValueError
         One line naming the file and the problem (missing, wrong columns, bad numbers,
-        wrong shape, no rows).
+        wrong shape, no rows, an angle beyond +-pi: degrees where radians belong).
     """
     path = Path(path)
     if not path.is_file():
@@ -40,6 +40,13 @@ def load_postures(path: str | Path) -> NDArray[np.float64]:
         raise ValueError(f"{path}: posture files are .csv or .npy")
     if len(postures) == 0:
         raise ValueError(f"{path}: no postures in the file")
+    beyond = np.argwhere(np.abs(postures) > np.pi)
+    if len(beyond):
+        row, joint = beyond[0]
+        raise ValueError(
+            f"{path}: posture {row}, {JOINT_NAMES[joint]} is {postures[row, joint]:g}, beyond "
+            "+-pi: posture files hold radians (degrees?)"
+        )
     return postures
 
 

@@ -209,7 +209,7 @@ def test_config_errors_are_one_line(tmp_path):
 
 
 def test_postures_from_files_random_and_selection(tmp_path):
-    from glovedb.posture_io import save_postures_csv
+    from glovedb.posture_io import load_postures, save_postures_csv
 
     save_postures_csv(
         tmp_path / "extra.csv", np.stack([named_posture("ok"), named_posture("fist")])
@@ -223,6 +223,10 @@ def test_postures_from_files_random_and_selection(tmp_path):
     assert plan.postures_rad.shape == (5, 20)
     assert plan.posture_names[0] == "open"  # farthest-point selection starts at the first
     assert make_plan(config).posture_names == plan.posture_names  # deterministic
+    # Degrees where radians belong would build a database of impossible hands.
+    save_postures_csv(tmp_path / "degrees.csv", np.degrees([named_posture("fist")]))
+    with pytest.raises(ValueError, match=r"degrees\.csv: posture 0, .* beyond \+-pi"):
+        load_postures(tmp_path / "degrees.csv")
 
 
 def _toml(config: dict) -> str:
