@@ -33,6 +33,7 @@ place the tip of a finger curled toward the palm.
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -817,8 +818,30 @@ def require_one_camera(config: FingertipDataConfig) -> None:
         )
 
 
-def load_data_config(path: str | Path, table: str = "data") -> FingertipDataConfig:
-    """Read the ``[data]`` table (or ``table``) of a TOML file."""
-    with open(path, "rb") as stream:
-        content = tomllib.load(stream)
-    return data_config_from_dict(content.get(table, {}))
+CONFIG_TABLES = ("data", "training", "detector", "verifier")
+"""The tables of a fingertip config file (``configs/fingertips/*.toml``)."""
+
+
+def read_config_tables(path: str | Path) -> dict[str, Any]:
+    """The tables of a fingertip config file; ``ValueError`` if unreadable or unknown.
+
+    A misspelt table (``[dat]``) would otherwise be ignored and its settings silently
+    replaced by the defaults.
+    """
+    try:
+        with open(path, "rb") as stream:
+            content = tomllib.load(stream)
+    except (OSError, tomllib.TOMLDecodeError) as error:
+        raise ValueError(f"{os.fspath(path)}: cannot read config ({error})") from error
+    unknown = set(content) - set(CONFIG_TABLES)
+    if unknown:
+        raise ValueError(f"{os.fspath(path)}: unknown tables {', '.join(sorted(unknown))}")
+    return content
+
+
+def load_data_config(path: str | Path) -> FingertipDataConfig:
+    """Read the ``[data]`` table of a fingertip config file, which must have one."""
+    tables = read_config_tables(path)
+    if "data" not in tables:
+        raise ValueError(f"{os.fspath(path)}: no [data] table")
+    return data_config_from_dict(tables["data"])

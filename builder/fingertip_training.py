@@ -30,11 +30,15 @@ from typing import Any, Literal, TypeAlias
 
 import numpy as np
 import sklearn
-import tomllib
 from numpy.typing import ArrayLike, NDArray
 from sklearn.ensemble import ExtraTreesClassifier, ExtraTreesRegressor, RandomForestClassifier
 
-from builder.fingertip_data import FingertipDataConfig, FingertipExample, data_config_from_dict
+from builder.fingertip_data import (
+    FingertipDataConfig,
+    FingertipExample,
+    data_config_from_dict,
+    read_config_tables,
+)
 from builder.fingertip_verifier import (
     VerifierTrainingConfig,
     train_verifier,
@@ -554,14 +558,7 @@ def load_recipe(path: str | os.PathLike[str], **data_overrides: Any) -> Fingerti
         For an unreadable file, an unknown table or setting, or a detector table that
         sets ``depth_band_m``.
     """
-    try:
-        with open(path, "rb") as stream:
-            content = tomllib.load(stream)
-    except (OSError, tomllib.TOMLDecodeError) as error:
-        raise ValueError(f"{os.fspath(path)}: cannot read config ({error})") from error
-    unknown = set(content) - {"data", "training", "detector", "verifier"}
-    if unknown:
-        raise ValueError(f"{os.fspath(path)}: unknown tables {', '.join(sorted(unknown))}")
+    content = read_config_tables(path)
     data = replace(data_config_from_dict(content.get("data", {})), **data_overrides)
     training = training_config_from_dict(content.get("training", {}))
     detector_table = content.get("detector", {})

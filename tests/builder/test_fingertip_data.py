@@ -197,6 +197,15 @@ def test_config_checks_and_toml(tmp_path: Path) -> None:
     path.write_text("[data]\nn_imgs = 7\n")
     with pytest.raises(ValueError, match="n_imgs"):
         load_data_config(path)
+    path.write_text("[dat]\nn_images = 7\n")  # a misspelt table is not ignored
+    with pytest.raises(ValueError, match="unknown tables dat"):
+        load_data_config(path)
+    path.write_text("[training]\nseed = 1\n")
+    with pytest.raises(ValueError, match=r"no \[data\] table"):
+        load_data_config(path)
+    path.write_text("[data\n")
+    with pytest.raises(ValueError, match="data.toml: cannot read config"):
+        load_data_config(path)
 
 
 def _toy_example(frame: int) -> FingertipExample:
