@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING
@@ -66,7 +67,9 @@ def make_tracker(args: argparse.Namespace) -> Tracker:
     settings = TrackerSettings()
     if args.cascade:
         settings = replace(settings, cascade=args.cascade)
-    if args.icp_stride:
+    if args.icp_stride is not None:
+        if args.icp_stride < 1:
+            raise ValueError(f"--icp-stride: expected at least 1, got {args.icp_stride}")
         settings = replace(settings, icp_stride=args.icp_stride)
     if args.no_smoothing:
         settings = replace(settings, smoothing_frames=1)
@@ -75,8 +78,8 @@ def make_tracker(args: argparse.Namespace) -> Tracker:
             raise ValueError("--refine-iterations must be 0 or more")
         settings = replace(settings, refine_iterations=args.refine_iterations)
     if args.temporal_prior is not None:
-        if not args.temporal_prior >= 0:
-            raise ValueError("--temporal-prior must be 0 or more")
+        if not 0 <= args.temporal_prior < math.inf:
+            raise ValueError(f"--temporal-prior: expected 0 or more, got {args.temporal_prior}")
         settings = replace(settings, temporal_prior_px=args.temporal_prior)
     if args.min_confidence is not None:
         if not 0 <= args.min_confidence <= 1:

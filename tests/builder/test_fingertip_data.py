@@ -204,7 +204,7 @@ def test_config_checks_and_toml(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"no \[data\] table"):
         load_data_config(path)
     path.write_text("[data\n")
-    with pytest.raises(ValueError, match="data.toml: cannot read config"):
+    with pytest.raises(ValueError, match=r"data\.toml: cannot read config"):
         load_data_config(path)
 
 

@@ -88,19 +88,13 @@ def test_bad_databases_and_inputs_exit_2(small_database, tmp_path):
         run_glove("build", str(tmp_path / "missing.toml"), "--out", out + ".h5"),
         "cannot read the config",
     )
-    assert_one_line_error(
-        run_glove(
-            "track",
-            str(sequence),
-            "--db",
-            str(small_database),
-            "--out",
-            out,
-            "--min-confidence",
-            "2",
-        ),
-        "--min-confidence: expected 0 to 1",
-    )
+    for option, value, message in (
+        ("--min-confidence", "2", "--min-confidence: expected 0 to 1"),
+        ("--icp-stride", "0", "--icp-stride: expected at least 1"),
+        ("--temporal-prior", "inf", "--temporal-prior: expected 0 or more"),
+    ):
+        argv = ["--db", str(small_database), "--out", out, option, value]
+        assert_one_line_error(run_glove("track", str(sequence), *argv), message)
 
 
 @pytest.mark.gl
