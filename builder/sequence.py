@@ -64,6 +64,8 @@ BACKGROUNDS: tuple[BackgroundKind, ...] = ("plain", "clutter", "table")
 PLAIN_RGB = (45, 45, 45)
 MAX_RANGE_M = 4.0
 """Farthest depth a background surface is measured at (a Kinect's range)."""
+MIN_HAND_DEPTH_M = 0.05
+"""Nearest a keypoint may come to the camera plane (its image position must exist)."""
 MAX_SEQUENCE_FRAMES = 1_000_000
 """Most frames of one rendered sequence (9 hours at 30 fps): their poses and keypoints
 are sampled into memory at once, about 1 kB per frame."""
@@ -551,6 +553,13 @@ def render_frames(
         sequence_times(trajectory, settings.frames)
     )
     keypoints = camera_keypoints(postures, rotations, translations, renderer.mesh.skeleton)
+    nearest = keypoints[..., 2].min(axis=1)
+    if np.any(nearest < MIN_HAND_DEPTH_M):
+        frame = int(np.argmax(nearest < MIN_HAND_DEPTH_M))
+        raise ValueError(
+            f"frame {frame}: the hand comes to z = {nearest[frame]:.3f} m; a trajectory must "
+            f"keep it at least {MIN_HAND_DEPTH_M} m in front of the camera"
+        )
     scene_rng = np.random.default_rng([settings.seed, 0])
     background = make_background(
         settings.background, camera, keypoints, renderer.pattern, rng=scene_rng

@@ -289,6 +289,18 @@ def test_a_hand_out_of_view_is_not_visible(renderer):
     frames = list(render_frames(trajectory, SequenceSettings("custom"), renderer))
     assert [f.truth.hand_visible for f in frames] == [True, False]
     assert not frames[1].hand_mask.any()
+    # A hand at the camera has no image position: refused, not written as NaN.
+    at_camera = trajectory_from_dict(
+        {
+            "fps": 1,
+            "keyframes": [
+                {"time_s": 0, "posture": "open", "rotation_quat_wxyz": [1, 0, 0, 0],
+                 "translation_m": [0.0, 0.0, 0.0]},
+            ],
+        }
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="frame 0: the hand comes to z = "):
+        next(render_frames(at_camera, SequenceSettings("custom"), renderer))
 
 
 def test_staged_folder_appears_only_when_complete(tmp_path):
