@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import fields
-from types import EllipsisType
-from typing import Any, TypeVar
+from types import EllipsisType, UnionType
+from typing import Any, TypeVar, Union, get_args, get_origin, get_type_hints
 
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike, NDArray
@@ -110,7 +110,43 @@ def dataclass_from_table(cls: type[_Config], table: Mapping[str, Any], where: st
     if unknown:
         raise ValueError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(names))})")
     values = {k: tuple(v) if isinstance(v, list) else v for k, v in table.items()}
+    hints = get_type_hints(cls)
+    for key, value in values.items():
+        if not _matches(value, hints[key]):
+            raise ValueError(f"{where}: {key}: expected {_type_name(hints[key])}, got {value!r}")
     try:
         return cls(**values)
     except TypeError as error:
         raise ValueError(f"{where}: {error}") from error
+
+
+def _matches(value: Any, hint: Any) -> bool:
+    """Whether a TOML value fits a field's type (an int is a float; a bool is neither)."""
+    origin, args = get_origin(hint), get_args(hint)
+    if hint is Any:
+        return True
+    if origin in (UnionType, Union):
+        return any(_matches(value, arg) for arg in args)
+    if hint is type(None):
+        return value is None
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if hint in (int, str):
+        return isinstance(value, hint) and not isinstance(value, bool)
+    if origin is tuple:
+        if not isinstance(value, tuple):
+            return False
+        if len(args) == 2 and args[1] is Ellipsis:
+            return all(_matches(item, args[0]) for item in value)
+        return len(value) == len(args) and all(map(_matches, value, args))
+    return True  # other types are left to the dataclass
+
+
+def _type_name(hint: Any) -> str:
+    names = {bool: "true or false", float: "a number", int: "a whole number", str: "a string"}
+    if get_origin(hint) is tuple:
+        args = get_args(hint)
+        return "a list" if args[-1:] == (Ellipsis,) else f"a list of {len(args)}"
+    return names.get(hint, str(hint).replace("typing.", ""))

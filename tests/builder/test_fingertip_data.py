@@ -197,6 +197,15 @@ def test_config_checks_and_toml(tmp_path: Path) -> None:
     path.write_text("[data]\nn_imgs = 7\n")
     with pytest.raises(ValueError, match="n_imgs"):
         load_data_config(path)
+    wrong_types = [
+        ('n_images = "7"', "n_images: expected a whole number, got '7'"),
+        ("distance_range_m = [0.3]", "distance_range_m: expected a list of 2"),
+        ("mirror_probability = true", "mirror_probability: expected a number"),
+    ]
+    for line, message in wrong_types:
+        path.write_text(f"[data]\n{line}\n")
+        with pytest.raises(ValueError, match=f"data: {message}"):
+            load_data_config(path)
     path.write_text("[dat]\nn_images = 7\n")  # a misspelt table is not ignored
     with pytest.raises(ValueError, match="unknown tables dat"):
         load_data_config(path)
