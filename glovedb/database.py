@@ -214,10 +214,13 @@ def open_database_file(path: Path) -> h5py.File:
     """Open a complete database file read-only, or raise a one-line ``ValueError``."""
     if not path.exists():
         raise ValueError(f"{path}: no such database file")
+    if path.is_dir():
+        raise ValueError(f"{path}: a folder, not a database file")
     try:
         file = h5py.File(path, "r")
     except OSError as error:
-        raise ValueError(f"{path}: not a readable HDF5 file ({error})") from error
+        reason = " ".join(str(error).split())  # HDF5's messages span lines
+        raise ValueError(f"{path}: not a readable HDF5 file ({reason})") from error
     try:
         check_header(file, path)
     except Exception:

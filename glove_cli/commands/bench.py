@@ -40,6 +40,8 @@ def run_lookup(args: argparse.Namespace) -> int:
 
     if args.queries < 1:
         raise ValueError("--queries must be at least 1")
+    if args.entries is not None and args.entries < 1:
+        raise ValueError(f"--entries must be at least 1, got {args.entries}")
     figures = run_lookup_benchmark(
         args.db, cascade=args.cascade, entries=args.entries, queries=args.queries,
         workers=args.workers, coarse_maps=args.coarse_maps,

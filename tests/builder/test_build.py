@@ -116,6 +116,8 @@ def test_an_unfinished_file_is_not_a_database(small_database, tmp_path):
     truncated.write_bytes(small_database.read_bytes()[:5000])
     with pytest.raises(ValueError, match="not a readable HDF5"):
         GloveDatabase(truncated)
+    with pytest.raises(ValueError, match="a folder, not a database file"):
+        GloveDatabase(tmp_path)
     # Damage that the shapes do not show: an entry pointing past the postures (an
     # IndexError in the middle of tracking) and zeroed rotations (a 173-degree error).
     damages = [

@@ -50,3 +50,11 @@ def test_bench_lookup_prints_the_figures(small_database):
         assert key in figures
     assert figures["entries"] == 500 and figures["latency_ms"]["median"] > 0
     assert 1.0 <= figures["mean_rank_true_nn"] <= 4.0
+
+
+def test_bench_lookup_refuses_no_entries(small_database, capsys):
+    from glove_cli.main import main
+
+    argv = ["bench", "lookup", "--db", str(small_database), "--entries", "0"]
+    assert main(argv) == 2
+    assert "--entries must be at least 1" in capsys.readouterr().err
