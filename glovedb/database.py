@@ -107,6 +107,10 @@ class GloveDatabase(Closing):
             shape = file[f"tiny/{size}"].shape
             if shape != (entries, size, size):
                 raise ValueError(f"{self.path}: /tiny/{size} has shape {shape}")
+        try:  # parsed now, so that a damaged file fails when opened, not mid-run
+            dict(json.loads(file.attrs["settings_json"]))
+        except (KeyError, ValueError, TypeError) as error:
+            raise ValueError(f"{self.path}: damaged database, settings_json ({error})") from error
         ids = {}
         for name, count in (("posture_id", postures), ("view_id", views)):
             ids[name] = file[f"entries/{name}"][()]

@@ -195,9 +195,11 @@ _TRUTH_FIELDS: dict[str, tuple[int, ...]] = {**_POSE_FIELDS, "keypoints_3d_m": (
 def _records(path: Path) -> Iterator[tuple[str, dict[str, Any]]]:
     """``(where, object)`` of every non-blank line; ``where`` is ``path:line``."""
     try:
-        lines = path.read_text().splitlines()
+        lines = path.read_text(encoding="utf-8").splitlines()
     except OSError as error:
         raise ValueError(f"{path}: cannot read ({error.strerror})") from error
+    except UnicodeDecodeError as error:
+        raise ValueError(f"{path}: not UTF-8 text (byte {error.start})") from error
     for number, line in enumerate(lines, start=1):
         if not line.strip():
             continue

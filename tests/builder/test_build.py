@@ -118,6 +118,12 @@ def test_an_unfinished_file_is_not_a_database(small_database, tmp_path):
         GloveDatabase(truncated)
     with pytest.raises(ValueError, match="a folder, not a database file"):
         GloveDatabase(tmp_path)
+    settings = tmp_path / "settings.h5"
+    settings.write_bytes(small_database.read_bytes())
+    with h5py.File(settings, "r+") as file:
+        file.attrs["settings_json"] = "{not json"
+    with pytest.raises(ValueError, match="damaged database, settings_json"):
+        GloveDatabase(settings)
     # Damage that the shapes do not show: an entry pointing past the postures (an
     # IndexError in the middle of tracking) and zeroed rotations (a 173-degree error).
     damages = [

@@ -96,6 +96,9 @@ def test_bad_annotation_lines_and_depth_sizes_raise_one_line_errors(tmp_path: Pa
     with pytest.raises(ValueError, match="depth_scale must be positive and finite"):
         read_annotated_depth(tmp_path)
     (tmp_path / "meta.json").write_text('{"depth_scale": 4000}')
+    path.write_bytes(b'{"frame": 0, "fingertips": {"\xff": null}}\n')
+    with pytest.raises(ValueError, match=r"annotations\.jsonl: not UTF-8 text \(byte 29\)"):
+        read_annotated_depth(tmp_path)
     # A depth image of another size than intrinsic.json says: the intrinsics would
     # put its points in the wrong place, so it is refused.
     path.write_text('{"frame": 0, "fingertips": {}}\n{"frame": 1, "fingertips": {}}\n')

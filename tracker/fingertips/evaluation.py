@@ -187,7 +187,11 @@ def read_annotated_depth(
     if not path.is_file() or not (root / "intrinsic.json").is_file():
         raise ValueError(f"{root}: expected intrinsic.json and {annotations}")
     frames, tips_m, tips_px = [], [], []
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as error:
+        raise ValueError(f"{path}: not UTF-8 text (byte {error.start})") from error
+    for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
         try:
