@@ -822,7 +822,7 @@ CONFIG_TABLES = ("data", "training", "detector", "verifier")
 """The tables of a fingertip config file (``configs/fingertips/*.toml``)."""
 
 
-def read_config_tables(path: str | Path) -> dict[str, Any]:
+def read_config_tables(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The tables of a fingertip config file; ``ValueError`` if unreadable or unknown.
 
     A misspelt table (``[dat]``) would otherwise be ignored and its settings silently
@@ -839,7 +839,7 @@ def read_config_tables(path: str | Path) -> dict[str, Any]:
     return content
 
 
-def load_data_config(path: str | Path) -> FingertipDataConfig:
+def load_data_config(path: str | os.PathLike[str]) -> FingertipDataConfig:
     """Read the ``[data]`` table of a fingertip config file, which must have one."""
     tables = read_config_tables(path)
     if "data" not in tables:

@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
 
 from glovedb._validate import as_array
@@ -112,7 +112,7 @@ class FingertipMetrics:
         return asdict(self)
 
 
-def _coordinates(name: str, value: object, shape: tuple[int, ...]) -> NDArray[np.float64]:
+def _coordinates(name: str, value: ArrayLike, shape: tuple[int, ...]) -> NDArray[np.float64]:
     return as_array(name, value, shape, np.float64, kind="fiu", finite=True)
 
 
