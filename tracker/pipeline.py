@@ -125,7 +125,7 @@ class TrackerSettings:
 
 
 def fit_confidence(lookup_error_px: float, icp: IcpResult) -> float:
-    """How much a frame's fit can be trusted, in (0, 1].
+    """How much a frame's fit can be trusted, in [0, 1].
 
     A good lookup (a pixel or two of matching error at the cascade's last stage) and a
     tight, well-supported rigid fit (a residual of millimetres, most points kept):
