@@ -79,11 +79,22 @@ def cached_database(cache: Path, workers: int) -> Path:
     return path
 
 
+def _rendered_by_glove(folder: Path) -> bool:
+    """Whether ``folder`` is a sequence that ``glove render-sequence`` (or a demo) wrote:
+    only such a folder is deleted to render the demo's sequence again."""
+    try:
+        meta = json.loads((folder / "meta.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(meta, dict) and meta.get("generator") == "glove render-sequence"
+
+
 def run(args: argparse.Namespace) -> int:
     import shutil
 
-    from builder.sequence import SequenceSettings, render_sequence
+    from builder.sequence import SequenceSettings, render_sequence, resolve_trajectory
     from glove_cli.commands.track import progress_bar
+    from glovedb.trajectory import load_trajectory
     from tracker.evaluation import report_run
     from tracker.pipeline import Tracker
     from tracker.run import POSES_FILE, track_source
@@ -91,13 +102,16 @@ def run(args: argparse.Namespace) -> int:
 
     if args.frames < 1:
         raise ValueError("--frames must be at least 1")
+    load_trajectory(resolve_trajectory(args.trajectory))  # a bad name fails before any output
     out = Path(args.out)
+    sequence = out / "sequence"
+    if sequence.exists():
+        if not _rendered_by_glove(sequence):
+            raise ValueError(f"{sequence}: not a rendered sequence, left alone; use another --out")
+        shutil.rmtree(sequence)  # the previous demo's: rendered again below
     out.mkdir(parents=True, exist_ok=True)
     database = cached_database(database_cache(args.cache), os.cpu_count() or 1)
 
-    sequence = out / "sequence"
-    if sequence.exists():
-        shutil.rmtree(sequence)
     settings = SequenceSettings(
         trajectory=args.trajectory, frames=args.frames, noise="kinect_v1", background="plain"
     )

@@ -73,3 +73,10 @@ def test_demo_runs_the_whole_job(tmp_path):
     again = run_glove("demo", "--out", str(tmp_path / "demo"), "--frames", "2",
                       "--cache", str(tmp_path / "cache"))  # fmt: skip
     assert again.returncode == 0 and "reusing" in again.stdout
+    # A sequence folder the demo did not render is never deleted, nor for a bad trajectory.
+    notes = tmp_path / "mine" / "sequence" / "notes.txt"
+    notes.parent.mkdir(parents=True)
+    notes.write_text("precious")
+    for extra in ([], ["--trajectory", "nope"]):
+        refused = run_glove("demo", "--out", str(tmp_path / "mine"), "--frames", "2", *extra)
+        assert refused.returncode == 2 and notes.read_text() == "precious"
