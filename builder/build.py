@@ -45,7 +45,7 @@ import glovedb.hand_model
 import glovedb.mesh
 import glovedb.shape
 import glovedb.surface_nets
-from builder.config import DatabaseConfig
+from builder.config import MAX_POSTURES, DatabaseConfig
 from builder.sampling import farthest_point_selection, synergy_postures
 from glovedb._threads import single_threaded_blas
 from glovedb.camera import CameraIntrinsics
@@ -125,6 +125,8 @@ def collect_postures(config: DatabaseConfig) -> tuple[NDArray[np.float64], tuple
     for file in sources.trajectories:
         trajectory = load_trajectory(base / file)
         count = int(np.floor(trajectory.duration_s * sources.trajectory_fps)) + 1
+        if count > MAX_POSTURES:
+            raise ValueError(f"{file}: {count} postures at trajectory_fps, over {MAX_POSTURES}")
         sampled, _, _ = trajectory.sample(np.arange(count) / sources.trajectory_fps)
         postures.append(sampled)
         names += [f"{Path(file).name}@{i / sources.trajectory_fps:g}s" for i in range(count)]

@@ -40,6 +40,12 @@ class RandomPostures:
     noise_deg: float = 5.0
 
 
+MAX_POSTURES = 1_000_000
+"""Most postures a build may draw or sample from one source (their arrays and the
+names are held in memory; a million postures already make a database of billions of
+entries)."""
+
+
 @dataclass(frozen=True)
 class PostureSources:
     """``[postures]``: where the database's postures come from."""
@@ -127,6 +133,22 @@ def check_config(config: DatabaseConfig, source: str) -> None:
         )
     if p.select is not None and p.select < 1:
         raise ValueError(f"{source}: [postures] select must be positive")
+    if not 0 < p.trajectory_fps <= 1000:
+        raise ValueError(f"{source}: [postures] trajectory_fps must be in (0, 1000]")
+    if p.random is not None:
+        r = p.random
+        if not 1 <= r.count <= MAX_POSTURES:
+            raise ValueError(f"{source}: [postures.random] count must be 1..{MAX_POSTURES}")
+        if r.seed < 0:
+            raise ValueError(f"{source}: [postures.random] seed must be 0 or more")
+        if not (0 <= r.spread <= 10 and 0 <= r.noise_deg <= 90):
+            raise ValueError(
+                f"{source}: [postures.random] spread must be 0..10 and noise_deg 0..90"
+            )
+    if not config.name or not config.name.isprintable():
+        raise ValueError(f"{source}: name must be non-empty printable text, got {config.name!r}")
+    if not 0.05 <= config.hand_length_m <= 0.5:
+        raise ValueError(f"{source}: hand_length_m must be 0.05..0.5 m")
     if not 0 <= config.views.subdivisions <= 4:
         raise ValueError(f"{source}: [views] subdivisions must be 0..4")
     if not 1 <= config.views.rolls <= 360:

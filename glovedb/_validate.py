@@ -113,7 +113,8 @@ def dataclass_from_table(cls: type[_Config], table: Mapping[str, Any], where: st
     hints = get_type_hints(cls)
     for key, value in values.items():
         if not _matches(value, hints[key]):
-            raise ValueError(f"{where}: {key}: expected {_type_name(hints[key])}, got {value!r}")
+            shown = list(value) if isinstance(value, tuple) else value  # as written in TOML
+            raise ValueError(f"{where}: {key}: expected {_type_name(hints[key])}, got {shown!r}")
     try:
         return cls(**values)
     except TypeError as error:
@@ -148,5 +149,8 @@ def _type_name(hint: Any) -> str:
     names = {bool: "true or false", float: "a number", int: "a whole number", str: "a string"}
     if get_origin(hint) is tuple:
         args = get_args(hint)
-        return "a list" if args[-1:] == (Ellipsis,) else f"a list of {len(args)}"
+        if args[-1:] != (Ellipsis,):
+            return f"a list of {len(args)}"
+        items = {bool: "true or false", float: "numbers", int: "whole numbers", str: "strings"}
+        return f"a list of {items.get(args[0], str(args[0]))}"
     return names.get(hint, str(hint).replace("typing.", ""))

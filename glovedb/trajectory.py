@@ -141,4 +141,8 @@ def load_trajectory(path: str | Path) -> Trajectory:
         raise ValueError(f"{path}: cannot read the trajectory ({error.strerror})") from error
     except json.JSONDecodeError as error:
         raise ValueError(f"{path}: not valid JSON ({error})") from error
+    except UnicodeDecodeError as error:
+        raise ValueError(f"{path}: not UTF-8 text (byte {error.start})") from error
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a trajectory object with fps and keyframes")
     return trajectory_from_dict(data, source=str(path))

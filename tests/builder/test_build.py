@@ -214,6 +214,17 @@ def test_config_errors_are_one_line(tmp_path):
         load_config(bad)
     with pytest.raises(ValueError, match=r"\.h5"):
         build_database(small_config(), tmp_path / "db.hdf")
+    postures = SMALL["postures"]
+    refused = [
+        ({"postures": {**postures, "trajectory_fps": 0.0}}, "trajectory_fps must be in"),
+        ({"postures": {**postures, "random": {"count": 0}}}, r"count must be 1\.\."),
+        ({"postures": {**postures, "random": {"count": 5, "spread": -1.0}}}, "spread must"),
+        ({"name": "x\u0000"}, "name must be non-empty printable"),  # HDF5 refuses NUL, at the end
+        ({"hand_length_m": float("nan")}, "hand_length_m must be"),
+    ]
+    for change, message in refused:
+        with pytest.raises(ValueError, match=message):
+            config_from_dict({**SMALL, **change})
 
 
 def test_postures_from_files_random_and_selection(tmp_path):

@@ -38,6 +38,9 @@ def test_malformed_trajectory_file_and_busy_folder_exit_2(capsys, tmp_path):
     bad.write_text('{"fps": 30, "keyframes": [{"time_s": 0}]}')
     assert main(["render-sequence", "--trajectory", str(bad), "--out", str(tmp_path / "a")]) == 2
     assert "keyframe 0: missing 'posture'" in capsys.readouterr().err
+    bad.write_text("[1, 2]")
+    assert main(["render-sequence", "--trajectory", str(bad), "--out", str(tmp_path / "a")]) == 2
+    assert "bad.json: expected a trajectory object" in capsys.readouterr().err
     busy = tmp_path / "busy"
     busy.mkdir()
     (busy / "x.txt").write_text("x")
