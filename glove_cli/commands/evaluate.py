@@ -27,7 +27,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from tracker.evaluation import report_run
+    import numpy as np
+
+    from tracker.evaluation import read_groundtruth, report_run
     from tracker.run import POSES_FILE, track_source
     from tracker.sources import open_source
 
@@ -37,6 +39,12 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"{sequence}: no groundtruth.jsonl (not a synthetic sequence)")
     out = Path(args.out) if args.out else sequence / "eval"
     source = open_source(sequence)
+    frames = read_groundtruth(truth).frames  # checked before the tracking, not after it
+    if source.n_frames is not None and not np.array_equal(frames, np.arange(source.n_frames)):
+        raise ValueError(
+            f"{truth}: frames {frames[0]}..{frames[-1]}, but the sequence has "
+            f"{source.n_frames} images (frames 0..{source.n_frames - 1})"
+        )
     with make_tracker(args) as tracker:
         summary = track_source(source, tracker, out, bvh=False, progress=progress_bar("evaluating"))
     title = f"{sequence.name} with {Path(args.db).name}"

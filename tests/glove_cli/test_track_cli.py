@@ -105,3 +105,22 @@ def test_a_corrupt_frame_stops_with_one_line_and_keeps_the_frames_before(small_d
     result = run_glove("track", str(sequence), "--db", str(small_database), "--out", str(out))
     assert_one_line_error(result, "000002.png")
     assert len((out / "poses.jsonl").read_text().splitlines()) == 2
+
+
+def test_eval_checks_the_ground_truth_against_the_images_before_tracking(small_database, tmp_path):
+    sequence = write_sequence(tmp_path / "seq", 2)
+    record = {
+        "hand_visible": False,
+        "posture_rad": [0.0] * 20,
+        "rotation": np.eye(3).tolist(),
+        "translation_m": [0.0, 0.0, 0.5],
+        "keypoints_3d_m": [[0.0, 0.0, 0.5]] * 21,
+        "keypoints_2d_px": [[31.5, 23.5]] * 21,
+    }
+    lines = [json.dumps({"frame": k, **record}) for k in range(3)]
+    (sequence / "groundtruth.jsonl").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    result = run_glove("eval", "--db", str(small_database), "--sequence", str(sequence),
+                       "--out", str(out))  # fmt: skip
+    assert_one_line_error(result, "frames 0..2, but the sequence has 2 images")
+    assert not out.exists()
