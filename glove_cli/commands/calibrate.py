@@ -24,7 +24,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("input", help="RGB-D folder, .bag file, 'realsense' or 'kinect'")
     parser.add_argument("--db", required=True, help="posture database (.h5)")
-    parser.add_argument("--out", help="table file (default: beside the database)")
+    parser.add_argument(
+        "--out", help="table file (default: beside the database; only an earlier table is replaced)"
+    )
     parser.add_argument("--frames", type=int, default=30, help="frames to use (default: 30)")
     parser.add_argument("--every", type=int, default=5, help="use every n-th frame (default: 5)")
     parser.set_defaults(run=run)
@@ -32,6 +34,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from tracker.calibrate import calibrate
+    from tracker.classify import load_table
     from tracker.pipeline import Tracker
     from tracker.sources import open_source
 
@@ -40,6 +43,10 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else default_table_path(args.db)
     if out.suffix != ".npz":
         raise ValueError(f"{out}: the color table is saved as .npz")
+    if out.exists():
+        if out.resolve() == Path(args.db).resolve():
+            raise ValueError(f"{out}: that is the database; choose another --out")
+        load_table(out)  # only an earlier color table is replaced, nothing else
     source = open_source(args.input)
     frames = list(itertools.islice(source, 0, args.frames * args.every, args.every))
     with Tracker(args.db) as tracker:

@@ -124,3 +124,18 @@ def test_eval_checks_the_ground_truth_against_the_images_before_tracking(small_d
                        "--out", str(out))  # fmt: skip
     assert_one_line_error(result, "frames 0..2, but the sequence has 2 images")
     assert not out.exists()
+
+
+def test_calibrate_replaces_only_an_earlier_color_table(small_database, tmp_path):
+    sequence = write_sequence(tmp_path / "seq", 1)
+    other = tmp_path / "model.npz"  # e.g. a fingertip model
+    np.savez(other, weights=np.arange(3))
+    before = other.read_bytes()
+    argv = ["calibrate", str(sequence), "--db", str(small_database), "--out", str(other)]
+    assert_one_line_error(run_glove(*argv), "not a color table")
+    assert other.read_bytes() == before
+    database = tmp_path / "db.npz"  # a database saved under a table's suffix
+    database.write_bytes(small_database.read_bytes())
+    argv = ["calibrate", str(sequence), "--db", str(database), "--out", str(database)]
+    assert_one_line_error(run_glove(*argv), "that is the database")
+    assert database.read_bytes() == small_database.read_bytes()
