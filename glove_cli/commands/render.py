@@ -30,10 +30,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--elevation",
         type=float,
-        default=0.0,
-        help="degrees toward the fingertips (with --azimuth)",
+        help="degrees toward the fingertips (with --azimuth; default 0)",
     )
-    parser.add_argument("--distance", type=float, default=0.35, help="camera distance in metres")
+    parser.add_argument(
+        "--distance", type=float, default=0.35, help="camera distance in metres (0.1 to 5)"
+    )
     parser.add_argument("--hand-length", type=float, default=0.19, help="hand length in metres")
     parser.set_defaults(run=run)
 
@@ -50,13 +51,23 @@ def run(args: argparse.Namespace) -> int:
     from glovedb.views import HAND_CENTRE, named_view, pose_for_view, view_direction
 
     check_image_path(args.out)
+    if args.elevation is not None and args.azimuth is None:
+        raise ValueError("--elevation needs --azimuth (it tilts that direction)")
+    if not 0.1 <= args.distance <= 5:
+        raise ValueError(
+            f"--distance: expected 0.1 to 5 m (the camera's range), got {args.distance}"
+        )
+    for option, angle in (("--azimuth", args.azimuth), ("--elevation", args.elevation)):
+        if angle is not None and not math.isfinite(angle):
+            raise ValueError(f"{option}: expected a finite angle in degrees, got {angle}")
+    elevation = args.elevation or 0.0
     posture = named_posture(args.posture)
     skeleton = make_skeleton(args.hand_length)
     if args.azimuth is not None:
-        direction = view_direction(math.radians(args.azimuth), math.radians(args.elevation))
+        direction = view_direction(math.radians(args.azimuth), math.radians(elevation))
         target = np.array(HAND_CENTRE) * skeleton.hand_length_m
         rotation, translation = pose_for_view(direction, args.distance, target_m=target)
-        view = f"azimuth {args.azimuth:g}, elevation {args.elevation:g}"
+        view = f"azimuth {args.azimuth:g}, elevation {elevation:g}"
     else:
         rotation, translation = named_view(args.view, args.distance, skeleton.hand_length_m)
         view = f"{args.view} view"

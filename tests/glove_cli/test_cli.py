@@ -36,6 +36,9 @@ def test_help_lists_the_commands(capsys):
         (["render", "--posture", "open", "--view", "left"], "invalid choice"),
         (["render", "--posture", "open", "--out", "x.txt"], ".png or .jpg"),
         (["render", "--posture", "open", "--out", "/no/such/dir/x.png"], "does not exist"),
+        (["render", "--posture", "open", "--elevation", "45"], "--elevation needs --azimuth"),
+        (["render", "--posture", "open", "--distance", "0.01"], "--distance: expected 0.1 to 5"),
+        (["render", "--posture", "open", "--azimuth", "nan"], "--azimuth: expected a finite"),
     ],
 )
 def test_bad_input_exits_2_with_one_line(capsys, args, message):
