@@ -219,7 +219,7 @@ def check_cascade(
         raise ValueError("cascade: needs at least one stage")
     for stage in stages:
         if stage.size < 1 or stage.k < 1:
-            raise ValueError(f"cascade: size and k must be positive, got {stage}")
+            raise ValueError(f"cascade: size and k must be positive, got {stage.size}:{stage.k}")
         if sizes is not None and stage.size not in sizes:
             raise ValueError(
                 f"cascade: size {stage.size} is not in the database (has {sorted(sizes)})"

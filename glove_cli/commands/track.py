@@ -68,14 +68,14 @@ def make_tracker(args: argparse.Namespace) -> Tracker:
     if args.cascade:
         settings = replace(settings, cascade=args.cascade)
     if args.icp_stride is not None:
-        if args.icp_stride < 1:
-            raise ValueError(f"--icp-stride: expected at least 1, got {args.icp_stride}")
+        if not 1 <= args.icp_stride <= 64:
+            raise ValueError(f"--icp-stride: expected 1 to 64, got {args.icp_stride}")
         settings = replace(settings, icp_stride=args.icp_stride)
     if args.no_smoothing:
         settings = replace(settings, smoothing_frames=1)
     if args.refine_iterations is not None:
-        if args.refine_iterations < 0:
-            raise ValueError("--refine-iterations must be 0 or more")
+        if not 0 <= args.refine_iterations <= 50:
+            raise ValueError(f"--refine-iterations: expected 0 to 50, got {args.refine_iterations}")
         settings = replace(settings, refine_iterations=args.refine_iterations)
     if args.temporal_prior is not None:
         if not 0 <= args.temporal_prior < math.inf:

@@ -90,7 +90,9 @@ def test_bad_databases_and_inputs_exit_2(small_database, tmp_path):
     )
     for option, value, message in (
         ("--min-confidence", "2", "--min-confidence: expected 0 to 1"),
-        ("--icp-stride", "0", "--icp-stride: expected at least 1"),
+        ("--icp-stride", "0", "--icp-stride: expected 1 to 64"),
+        ("--refine-iterations", "100000", "--refine-iterations: expected 0 to 50"),
+        ("--cascade", "8:0", "cascade: size and k must be positive, got 8:0"),
         ("--temporal-prior", "inf", "--temporal-prior: expected 0 or more"),
     ):
         argv = ["--db", str(small_database), "--out", out, option, value]
