@@ -32,8 +32,9 @@ def load_postures(path: str | Path) -> NDArray[np.float64]:
         try:
             data = np.load(path, allow_pickle=False)
         except (OSError, ValueError) as error:
-            raise ValueError(f"{path}: not a readable .npy file ({error})") from error
-        postures = as_array(str(path), data, (None, N_JOINTS), np.float64, finite=True)
+            # numpy calls any file without its header "pickled data": not helpful here
+            raise ValueError(f"{path}: not a .npy array file") from error
+        postures = as_array(str(path), data, (None, N_JOINTS), np.float64, kind="fiu", finite=True)
     elif path.suffix.lower() == ".csv":
         postures = _read_csv(path)
     else:

@@ -72,8 +72,10 @@ def load_table(path: str | Path) -> ColorTable:
             source = str(data["source"])
     except (OSError, KeyError, ValueError) as error:
         raise ValueError(f"{path}: not a color table ({error})") from error
-    if table.shape != (_LEVELS,) * 3 or table.dtype != np.uint8 or table.max() > 10:
+    if table.shape != (_LEVELS,) * 3 or table.dtype != np.uint8:
         raise ValueError(f"{path}: not a color table (shape {table.shape}, {table.dtype})")
+    if table.max() > 10:
+        raise ValueError(f"{path}: not a color table (label {table.max()}; labels are 0 to 10)")
     return ColorTable(table, source)
 
 

@@ -246,6 +246,12 @@ def test_postures_from_files_random_and_selection(tmp_path):
     save_postures_csv(tmp_path / "degrees.csv", np.degrees([named_posture("fist")]))
     with pytest.raises(ValueError, match=r"degrees\.csv: posture 0, .* beyond \+-pi"):
         load_postures(tmp_path / "degrees.csv")
+    np.save(tmp_path / "complex.npy", np.ones((1, 20), complex))
+    with pytest.raises(TypeError, match="complex"):
+        load_postures(tmp_path / "complex.npy")
+    (tmp_path / "text.npy").write_text("open\n")
+    with pytest.raises(ValueError, match=r"text\.npy: not a \.npy array file"):
+        load_postures(tmp_path / "text.npy")
 
 
 def _toml(config: dict) -> str:
