@@ -219,7 +219,6 @@ def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
 
 
 def run_detect(args: argparse.Namespace) -> int:
-
     from tracker.fingertips.detector import FingertipDetector
     from tracker.fingertips.sequence import open_depth_sequence
 
