@@ -187,6 +187,7 @@ def read_annotated_depth(
     if not path.is_file() or not (root / "intrinsic.json").is_file():
         raise ValueError(f"{root}: expected intrinsic.json and {annotations}")
     frames, tips_m, tips_px = [], [], []
+    seen: set[int] = set()
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError as error:
@@ -202,8 +203,9 @@ def read_annotated_depth(
             raise ValueError(f"{path}:{number}: not an annotation record ({error!r})") from error
         except ValueError as error:
             raise ValueError(f"{path}:{number}: {error}") from error
-        if frame in frames:
+        if frame in seen:
             raise ValueError(f"{path}:{number}: frame {frame} is annotated twice")
+        seen.add(frame)
         frames.append(frame)
         tips_m.append(frame_m)
         tips_px.append(frame_px)
