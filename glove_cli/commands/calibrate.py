@@ -40,7 +40,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.frames < 1 or args.every < 1:
         raise ValueError("--frames and --every must be at least 1")
-    out = Path(args.out) if args.out else default_table_path(args.db)
+    if args.out == "":
+        raise ValueError("--out: expected a file name")
+    out = Path(args.out) if args.out is not None else default_table_path(args.db)
     if out.suffix != ".npz":
         raise ValueError(f"{out}: the color table is saved as .npz")
     if out.exists():

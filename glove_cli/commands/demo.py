@@ -109,8 +109,11 @@ def run(args: argparse.Namespace) -> int:
         if not _rendered_by_glove(sequence):
             raise ValueError(f"{sequence}: not a rendered sequence, left alone; use another --out")
         shutil.rmtree(sequence)  # the previous demo's: rendered again below
+    cache = database_cache(args.cache)
+    if cache.exists() and not cache.is_dir():
+        raise ValueError(f"--cache: {cache} is a file, expected a folder")
     out.mkdir(parents=True, exist_ok=True)
-    database = cached_database(database_cache(args.cache), os.cpu_count() or 1)
+    database = cached_database(cache, os.cpu_count() or 1)
 
     settings = SequenceSettings(
         trajectory=args.trajectory, frames=args.frames, noise="kinect_v1", background="plain"

@@ -83,3 +83,8 @@ def test_demo_runs_the_whole_job(tmp_path):
     for extra in ([], ["--trajectory", "nope"]):
         refused = run_glove("demo", "--out", str(tmp_path / "mine"), "--frames", "2", *extra)
         assert refused.returncode == 2 and notes.read_text() == "precious"
+    (tmp_path / "a_file").write_text("x")
+    argv = ["--out", str(tmp_path / "new"), "--cache", str(tmp_path / "a_file")]
+    refused = run_glove("demo", "--frames", "2", *argv)
+    assert refused.returncode == 2 and "is a file" in refused.stderr
+    assert not (tmp_path / "new").exists()
