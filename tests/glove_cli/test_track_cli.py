@@ -141,3 +141,5 @@ def test_calibrate_replaces_only_an_earlier_color_table(small_database, tmp_path
     argv = ["calibrate", str(sequence), "--db", str(database), "--out", str(database)]
     assert_one_line_error(run_glove(*argv), "that is the database")
     assert database.read_bytes() == small_database.read_bytes()
+    argv = ["calibrate", str(sequence), "--db", str(small_database), "--out", ""]
+    assert_one_line_error(run_glove(*argv), "--out: expected a file name")
