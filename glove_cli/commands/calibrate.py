@@ -45,6 +45,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out is not None else default_table_path(args.db)
     if out.suffix != ".npz":
         raise ValueError(f"{out}: the color table is saved as .npz")
+    if not out.parent.is_dir():
+        raise ValueError(f"{out.parent}: folder does not exist")
     if out.exists():
         if out.resolve() == Path(args.db).resolve():
             raise ValueError(f"{out}: that is the database; choose another --out")

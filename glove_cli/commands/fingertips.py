@@ -235,6 +235,8 @@ def run_detect(args: argparse.Namespace) -> int:
             path.unlink()
     if not args.sheet:
         (out / "overlay").mkdir(exist_ok=True)
+    elif (out / "overlay").is_dir() and not any((out / "overlay").iterdir()):
+        (out / "overlay").rmdir()
     tiles = []
     elapsed = 0.0
     with open(out / "fingertips.jsonl", "w") as stream:

@@ -143,3 +143,5 @@ def test_calibrate_replaces_only_an_earlier_color_table(small_database, tmp_path
     assert database.read_bytes() == small_database.read_bytes()
     argv = ["calibrate", str(sequence), "--db", str(small_database), "--out", ""]
     assert_one_line_error(run_glove(*argv), "--out: expected a file name")
+    argv = ["calibrate", str(sequence), "--db", str(small_database), "--out", "no/where.npz"]
+    assert_one_line_error(run_glove(*argv), "no: folder does not exist")
