@@ -17,6 +17,7 @@ from builder.render import GloveRenderer, Rendering
 from glovedb.hand_model import N_JOINTS
 from glovedb.pattern import GlovePattern
 from glovedb.views import named_view
+from tracker.overlay import write_rgb
 
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 
@@ -107,7 +108,4 @@ def check_image_path(path: str | Path) -> Path:
 
 def save_rgb(path: str | Path, image: NDArray[np.uint8]) -> Path:
     """Write an RGB image (PNG or JPEG by extension); ``ValueError`` if it cannot."""
-    path = check_image_path(path)
-    if not cv2.imwrite(str(path), np.ascontiguousarray(image[..., ::-1])):
-        raise ValueError(f"{path}: could not write the image")
-    return path
+    return write_rgb(check_image_path(path), image)

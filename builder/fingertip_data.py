@@ -46,7 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from builder.depth_noise import NOISE_PRESETS, apply_depth_noise, noise_preset
 from builder.render import GloveRenderer
-from builder.sequence import staged_folder
+from builder.sequence import depth_to_png_units, staged_folder
 from glovedb import __version__
 from glovedb._validate import as_array, check_choice, dataclass_from_table
 from glovedb.camera import CameraIntrinsics
@@ -782,8 +782,7 @@ def write_annotated_folder(
                     camera, size = example.intrinsics, example.depth_m.shape
                 elif not np.allclose(camera, example.intrinsics) or size != example.depth_m.shape:
                     raise ValueError("examples: every frame of a folder needs the same camera")
-                millimetres = np.rint(example.depth_m.astype(np.float64) * depth_scale)
-                depth = np.clip(millimetres, 0, np.iinfo(np.uint16).max).astype(np.uint16)
+                depth = depth_to_png_units(example.depth_m, depth_scale)
                 if not cv2.imwrite(str(root / "depth" / f"{frame:06d}.png"), depth):
                     raise ValueError(f"{folder}: could not write the depth of frame {frame}")
                 truth, annotation = _record(frame, example)

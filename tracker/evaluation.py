@@ -35,6 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from glovedb._validate import as_array
 from glovedb.rotations import geodesic_angle
+from tracker.overlay import write_rgb
 
 N_JOINTS = 20
 N_KEYPOINTS = 21
@@ -628,9 +629,7 @@ def save_error_plot(path: str | Path, picture: NDArray[np.uint8]) -> Path:
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise ValueError(f"{path}: expected a .png file name")
-    if not cv2.imwrite(str(path), np.ascontiguousarray(picture[..., ::-1])):
-        raise ValueError(f"{path}: could not write the picture")
-    return path
+    return write_rgb(path, picture)
 
 
 def report_run(

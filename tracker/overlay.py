@@ -410,7 +410,7 @@ class VideoWriter:
             self._writer = writer
             return
         writer.release()
-        self._folder = self.path.with_name(f"{self.path.stem}_frames")
+        self._folder = frames_folder(self.path)
         self._folder.mkdir(parents=True, exist_ok=True)
         self.note = (
             f"{self.path}: OpenCV cannot write {self.codec!r} video here; "
@@ -518,6 +518,22 @@ def timing_summary(timings: Iterable[Mapping[str, float]]) -> TimingSummary:
 
 
 # --- Helpers --------------------------------------------------------------------------
+
+
+def write_rgb(path: str | PathLike[str], image: ArrayLike) -> Path:
+    """Write an RGB picture (PNG or JPEG by the extension); ``ValueError`` naming the
+    file if it cannot be written."""
+    path = Path(path)
+    rgb = as_array("image", image, (None, None, 3), np.uint8, kind="u")
+    if not cv2.imwrite(str(path), np.ascontiguousarray(rgb[..., ::-1])):
+        raise ValueError(f"{path}: could not write the picture")
+    return path
+
+
+def frames_folder(video_path: str | PathLike[str]) -> Path:
+    """Where :class:`VideoWriter` puts PNG frames when it cannot write ``video_path``."""
+    path = Path(video_path)
+    return path.with_name(f"{path.stem}_frames")
 
 
 def _copy_image(image: ArrayLike) -> NDArray[np.uint8]:

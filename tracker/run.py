@@ -22,7 +22,13 @@ from typing import Any
 
 from tracker.bvh import pose_arrays, write_bvh
 from tracker.frames import Frame
-from tracker.overlay import TimingSummary, VideoWriter, draw_record, timing_summary
+from tracker.overlay import (
+    TimingSummary,
+    VideoWriter,
+    draw_record,
+    frames_folder,
+    timing_summary,
+)
 from tracker.pipeline import Tracker
 from tracker.sources import Source
 
@@ -76,7 +82,7 @@ def _remove_earlier_outputs(folder: Path) -> None:
     overlay or BVH this run does not write) passes for this run's."""
     for name in (POSES_FILE, "overlay.mp4", "hand.bvh", "timing.json"):
         (folder / name).unlink(missing_ok=True)
-    frames = folder / "overlay_frames"  # VideoWriter's PNG fallback
+    frames = frames_folder(folder / "overlay.mp4")  # VideoWriter's PNG fallback
     if frames.is_dir():
         for path in frames.glob("[0-9]*.png"):
             path.unlink()

@@ -191,14 +191,6 @@ def _progress(iterable: Iterable[Any], **options: Any) -> Iterable[Any]:
     return tqdm(iterable, disable=None, file=sys.stderr, **options)
 
 
-def _write_png(path: Path, rgb: Any) -> None:
-    """Write an RGB picture; ``ValueError`` naming the file if it cannot be written."""
-    import cv2
-
-    if not cv2.imwrite(str(path), rgb[..., ::-1]):
-        raise ValueError(f"{path}: could not write the picture")
-
-
 def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
     from dataclasses import replace
 
@@ -221,6 +213,7 @@ def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
 def run_detect(args: argparse.Namespace) -> int:
     from tracker.fingertips.detector import FingertipDetector
     from tracker.fingertips.sequence import open_depth_sequence
+    from tracker.overlay import write_rgb
 
     model, config = _load_model(args)
     detector = FingertipDetector(model, config=config)
@@ -250,9 +243,9 @@ def run_detect(args: argparse.Namespace) -> int:
             if args.sheet:
                 tiles.append(picture)
             else:
-                _write_png(out / "overlay" / f"{frame:06d}.png", picture)
+                write_rgb(out / "overlay" / f"{frame:06d}.png", picture)
     if args.sheet:
-        _write_png(out / "contact_sheet.png", contact_sheet(tiles))
+        write_rgb(out / "contact_sheet.png", contact_sheet(tiles))
     n = len(sequence.frames)
     count = sum(1 for _ in open(out / "fingertips.jsonl"))
     print(
@@ -436,6 +429,8 @@ def _write_scored_sheet(path: Path, data: Any, detections: list[Any]) -> None:
     import cv2
     import numpy as np
 
+    from tracker.overlay import write_rgb
+
     n = len(detections)
     if n == 0:
         raise ValueError("--sheet: no annotated frames to draw")
@@ -450,4 +445,4 @@ def _write_scored_sheet(path: Path, data: Any, detections: list[Any]) -> None:
         )
         tiles.append(tile)
     path.parent.mkdir(parents=True, exist_ok=True)
-    _write_png(path, contact_sheet(tiles))
+    write_rgb(path, contact_sheet(tiles))
