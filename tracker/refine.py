@@ -12,6 +12,11 @@ freedom (20 joint angles and the 6D pose) to the labeled point cloud:
   derivatives of the skinned vertices ``sum_b w_b dM_b/dtheta v_rest`` with the
   skinning matrices' derivatives taken by finite differences (exact for linear
   blend skinning up to O(h));
+- optionally, fingertip detections (:mod:`tracker.fingertips`) named by Eq. 11 of
+  Tzionas et al. 2014 pull the model's fingertips toward them: three residuals per
+  named finger, the 3D distance of the model's tip to its detection beyond a dead
+  band (``tip_deadband_m``), weighted by ``tip_weight`` (the salient-point term of
+  Tzionas et al.);
 - a prior pulls the angles toward the looked-up posture (``prior_weight`` per radian,
   against residuals in metres), Levenberg-Marquardt damping keeps steps small, and
   the joint limits clip every step.
@@ -28,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from glovedb._validate import as_array
-from glovedb.hand_model import N_JOINTS, clip_to_limits
+from glovedb.hand_model import FINGERTIP_KEYPOINTS, N_JOINTS, clip_to_limits, forward_kinematics
 from glovedb.mesh import HandMesh, skin, skinning_matrices, vertex_normals
 from glovedb.pattern import LabeledVertices
 from glovedb.rotations import axis_angle_to_matrix
@@ -68,7 +73,7 @@ def posture_jacobian(
     mesh : HandMesh
     matrices : (21, 16, 3, 4) float
         Skinning matrices of the posture and of the posture with each angle in turn
-        raised by ``_STEP_RAD`` (:func:`_stepped_matrices`).
+        raised by ``_STEP_RAD`` (:func:`_stepped_postures`).
     vertices : (P,) int
         Mesh vertex indices.
 
@@ -86,10 +91,80 @@ def posture_jacobian(
     return np.einsum("pjkl,pl->pjk", blended, rest)
 
 
-def _stepped_matrices(mesh: HandMesh, posture_rad: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Skinning matrices of the posture and of its 20 single-angle steps."""
-    stepped = posture_rad + np.vstack([np.zeros(N_JOINTS), _STEP_RAD * np.eye(N_JOINTS)])
-    return skinning_matrices(stepped, mesh.skeleton)
+def _stepped_postures(posture_rad: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(21, 20)``: the posture and the posture with each angle in turn raised by a step."""
+    return posture_rad + np.vstack([np.zeros(N_JOINTS), _STEP_RAD * np.eye(N_JOINTS)])
+
+
+def tip_residuals(
+    mesh: HandMesh,
+    stepped_rad: NDArray[np.float64],
+    rotation: NDArray[np.float64],
+    translation_m: NDArray[np.float64],
+    targets_m: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Residuals and Jacobian of the model's fingertips against their targets.
+
+    Parameters
+    ----------
+    mesh : HandMesh
+        Its skeleton gives the fingertips (keypoints 4, 8, 12, 16, 20).
+    stepped_rad : (21, 20) float
+        The posture and its single-angle steps (:func:`_stepped_postures`).
+    rotation, translation_m : (3, 3), (3,) float
+        Pose ``p_cam = R @ p_hand + t``.
+    targets_m : (5, 3) float
+        Camera-frame target of each finger's tip, thumb first; NaN rows have none.
+
+    Returns
+    -------
+    residual : (3F,) float64
+        Model tip minus target, metres, for the F fingers with a target.
+    jacobian : (3F, 26) float64
+        Derivatives with respect to the rotation step (axis-angle, applied on the
+        left), the translation step and the 20 joint angles, as in :func:`refine`.
+    """
+    named = np.flatnonzero(np.isfinite(targets_m).all(axis=1))
+    if len(named) == 0:
+        return np.zeros(0), np.zeros((0, 6 + N_JOINTS))
+    tips = forward_kinematics(stepped_rad, mesh.skeleton).keypoints_m[:, FINGERTIP_KEYPOINTS]
+    tips = tips[:, named]  # (21, F, 3), hand frame
+    points = tips[0] @ rotation.T + translation_m
+    d_tips = ((tips[1:] - tips[0]) / _STEP_RAD) @ rotation.T  # (20, F, 3), camera frame
+    skew = np.zeros((len(named), 3, 3))  # d(turn @ x)/d(axis) = -[x]_x
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = points[:, 2], -points[:, 1], points[:, 0]
+    skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = -points[:, 2], points[:, 1], -points[:, 0]
+    jacobian = np.concatenate(
+        [skew, np.broadcast_to(np.eye(3), skew.shape), d_tips.transpose(1, 2, 0)], axis=2
+    )
+    residual = points - targets_m[named]
+    return residual.reshape(-1), jacobian.reshape(-1, 6 + N_JOINTS)
+
+
+def deadband_weights(residual: ArrayLike, deadband_m: float) -> NDArray[np.float64]:
+    """Row weights that make 3D residuals cost ``(|r| - deadband)**2`` beyond the band.
+
+    Iteratively reweighted least squares for the loss ``max(0, |r| - deadband)**2``:
+    each 3D residual's rows get the weight ``sqrt(max(0, 1 - deadband / |r|))``, so a
+    residual within the band adds nothing and a long one is pulled back to the band's
+    edge, not to zero.
+
+    Parameters
+    ----------
+    residual : (3F,) float
+        F stacked 3D residuals, metres.
+    deadband_m : float
+        Metres; 0 gives weights of 1 (plain least squares).
+
+    Returns
+    -------
+    (3F,) float64
+    """
+    size = np.linalg.norm(np.asarray(residual, dtype=np.float64).reshape(-1, 3), axis=1)
+    if deadband_m == 0:
+        return np.ones(3 * len(size))
+    share = 1.0 - deadband_m / np.maximum(size, np.finfo(np.float64).tiny)
+    return np.sqrt(np.clip(share, 0.0, None)).repeat(3)
 
 
 def refine(
@@ -106,6 +181,9 @@ def refine(
     damping: float = 1e-6,
     gate_m: float = 0.015,
     start_surface: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    tip_targets_m: ArrayLike | None = None,
+    tip_weight: float = 4.0,
+    tip_deadband_m: float = 0.01,
 ) -> RefinementResult:
     """Fit posture and pose to the labeled point cloud (see the module docstring).
 
@@ -131,6 +209,17 @@ def refine(
     start_surface : ((V, 3), (V, 3)) float, optional
         The mesh's vertices and normals (hand frame) already skinned for
         ``posture_rad``, to save the first iteration's skinning.
+    tip_targets_m : (5, 3) float, optional
+        Camera-frame targets of the model's fingertips (thumb first), e.g. fingertip
+        detections named by :func:`tracker.fingertips.detect.name_fingers`; NaN rows
+        (fingers without a detection) add nothing.
+    tip_weight : float
+        Weight of a fingertip residual against one point-to-plane residual: a named
+        detection counts like ``tip_weight**2`` cloud points on each axis.
+    tip_deadband_m : float
+        A model fingertip this close to its target is not pulled (see
+        :func:`deadband_weights`): fingertip detections are only accurate to about
+        7 mm, less than the cloud fit, so they should only correct larger errors.
 
     Returns
     -------
@@ -142,12 +231,20 @@ def refine(
     theta = prior.copy()
     R = as_array("rotation", rotation, (3, 3), np.float64, finite=True).copy()
     t = as_array("translation_m", translation_m, (3,), np.float64, finite=True).copy()
+    targets = np.full((len(FINGERTIP_KEYPOINTS), 3), np.nan)
+    if tip_targets_m is not None:
+        targets = as_array("tip_targets_m", tip_targets_m, targets.shape, np.float64)
+    if not 0 <= tip_weight < np.inf:
+        raise ValueError(f"tip_weight: expected 0 or more, got {tip_weight}")
+    if not 0 <= tip_deadband_m < np.inf:
+        raise ValueError(f"tip_deadband_m: expected 0 or more, got {tip_deadband_m}")
     observed_class_m = class_coordinate(labels)
     cost = np.inf
     done = 0
     for iteration in range(1, iterations + 1):
         done = iteration
-        matrices = _stepped_matrices(mesh, theta)
+        stepped = _stepped_postures(theta)
+        matrices = skinning_matrices(stepped, mesh.skeleton)
         if iteration == 1 and start_surface is not None:
             hand, normals = start_surface
         else:
@@ -179,6 +276,10 @@ def refine(
             ],
             axis=1,
         )
+        tip_residual, tip_jacobian = tip_residuals(mesh, stepped, R, t, targets)
+        tip_rows = tip_weight * deadband_weights(tip_residual, tip_deadband_m)
+        jacobian = np.concatenate([jacobian, tip_rows[:, None] * tip_jacobian])
+        residual = np.concatenate([residual, tip_rows * tip_residual])
         normal = jacobian.T @ jacobian
         gradient = jacobian.T @ residual
         normal[6:, 6:] += prior_weight**2 * np.eye(N_JOINTS)
