@@ -20,7 +20,10 @@ Per frame:
    visible surface's centroid on the point cloud's centroid, and refine the rigid
    pose with color-sensitive ICP (:mod:`tracker.icp`);
 5. **refine** posture and pose together by articulated, color-sensitive ICP
-   (:mod:`tracker.refine`), starting from the looked-up posture;
+   (:mod:`tracker.refine`), starting from the looked-up posture; with a fingertip
+   model (``fingertip_model``), fingertips detected in the depth alone
+   (:mod:`tracker.fingertips`) and named by Eq. 11 of Tzionas et al. against the
+   aligned model's fingertips pull those fingertips toward them;
 6. **smooth** over the last frames (:class:`PoseSmoother`), and report keypoints,
    fingertips, a confidence and per-stage timings.
 """
@@ -29,6 +32,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,12 +58,16 @@ from glovedb.rotations import axis_angle_to_matrix, geodesic_angle
 from glovedb.search import interpolate_pose, parse_cascade
 from glovedb.tiny_images import tiny_images_from_pixels
 from tracker.classify import ColorTable, nominal_table
+from tracker.fingertips.detect import Detection, detection_points, fingertips_output
+from tracker.fingertips.detector import FingertipDetector
 from tracker.frames import Frame
 from tracker.icp import IcpResult, color_icp
 from tracker.point_cloud import hand_region, labeled_point_cloud
 from tracker.refine import refine
 
-STAGES = ("classify", "segment", "lookup", "icp", "refine", "total")
+STAGES = ("classify", "segment", "lookup", "icp", "fingertips", "refine", "total")
+"""Per-frame ``timing_ms`` keys in pipeline order (``fingertips`` only with a fingertip
+model, ``refine`` only with refinement)."""
 
 
 @dataclass(frozen=True)
@@ -101,6 +109,16 @@ class TrackerSettings:
         Matching error (pixels at the last stage's size) added per radian of mean
         absolute joint-angle difference between a candidate's posture and the
         previous frame's; 0 turns the re-ranking off.
+    fingertip_model : str or None
+        A fingertip model (``.npz``, :mod:`tracker.fingertips.forest`), or
+        ``"default"`` for the shipped one: its detections take part in the
+        refinement. None (the default) detects no fingertips.
+    fingertip_weight : float
+        Weight of a named detection in the refinement (``tip_weight`` of
+        :func:`tracker.refine.refine`).
+    fingertip_deadband_m : float
+        Model fingertips this close to their detection are not pulled
+        (``tip_deadband_m`` of :func:`tracker.refine.refine`).
     mesh_spacing_m : float
         Resolution of the model surface used by ICP.
     workers : int or None
@@ -121,6 +139,9 @@ class TrackerSettings:
     refine_max_points: int = 500
     lookup_candidates: int = 10
     temporal_prior_px: float = 1.0
+    fingertip_model: str | None = None
+    fingertip_weight: float = 4.0
+    fingertip_deadband_m: float = 0.01
     workers: int | None = None
 
 
@@ -153,7 +174,10 @@ def fit_confidence(lookup_error_px: float, icp: IcpResult) -> float:
 class TrackingResult:
     """What the tracker says about one frame (CONVENTIONS.md "Tracking output").
 
-    Pose fields are ``None`` when ``hand_found`` is false.
+    Pose fields are ``None`` when ``hand_found`` is false. ``fingertips`` are the
+    fitted model's; ``fingertip_detections`` are the depth detections the refinement
+    used (named by Eq. 11 where assigned), None when the tracker has no fingertip
+    model.
     """
 
     frame: int
@@ -166,6 +190,7 @@ class TrackingResult:
     fingertips: tuple[dict[str, Any], ...] = ()
     confidence: float = 0.0
     timing_ms: dict[str, float] = field(default_factory=dict)
+    fingertip_detections: tuple[Detection, ...] | None = None
 
     def as_record(self) -> dict[str, Any]:
         """The ``poses.jsonl`` object of this frame."""
@@ -183,6 +208,8 @@ class TrackingResult:
                 fingertips=list(self.fingertips),
                 confidence=round(self.confidence, 4),
             )
+            if self.fingertip_detections is not None:
+                record["fingertip_detections"] = fingertips_output(self.fingertip_detections)
         record["timing_ms"] = {k: round(v, 3) for k, v in self.timing_ms.items()}
         return record
 
@@ -251,6 +278,7 @@ class Tracker(Closing):
         color_table: ColorTable | None = None,
     ) -> None:
         self.settings = settings or TrackerSettings()
+        self.fingertips = _fingertip_detector(self.settings.fingertip_model)
         self.index = DatabaseIndex(database)
         hand_length = self.index.hand_length_m
         pattern = load_pattern()
@@ -347,13 +375,20 @@ class Tracker(Closing):
         if confidence < self.settings.min_confidence:
             return self._not_found(frame, timing, started)
         rotation, translation = icp.rotation, icp.translation_m
+        tip_targets, detections = None, None
+        if self.fingertips is not None:
+            detections = self._named_detections(frame, posture, rotation, translation)
+            tip_targets = tip_targets_of(detections)
+            lap("fingertips")
         if self.settings.refine_iterations > 0:
             step = max(1, len(cloud) // self.settings.refine_max_points)
             refined = refine(
                 cloud.points_m[::step], cloud.labels[::step], self.mesh, self.split,
                 posture, rotation, translation,
                 iterations=self.settings.refine_iterations, prior_weight=self.settings.refine_prior,
-                start_surface=(surface, normals),
+                start_surface=(surface, normals), tip_targets_m=tip_targets,
+                tip_weight=self.settings.fingertip_weight,
+                tip_deadband_m=self.settings.fingertip_deadband_m,
             )  # fmt: skip
             posture, rotation, translation = (
                 refined.posture_rad,
@@ -365,12 +400,30 @@ class Tracker(Closing):
         self._previous_posture = posture
         result = self._result(frame, posture, rotation, translation, confidence)
         timing["total"] = (time.perf_counter() - started) * 1000.0
-        return TrackingResult(**{**result, "timing_ms": timing})
+        return TrackingResult(**result, timing_ms=timing, fingertip_detections=detections)
 
     def reset(self) -> None:
         """Forget the past frames (start of a new sequence)."""
         self._smoother.reset()
         self._previous_posture = None
+
+    def _named_detections(
+        self,
+        frame: Frame,
+        posture: NDArray[np.float64],
+        rotation: NDArray[np.float64],
+        translation: NDArray[np.float64],
+    ) -> tuple[Detection, ...]:
+        """Fingertips detected in the frame's depth, named by Eq. 11 against the
+        fingertips of the model posed with ``posture`` at ``rotation``, ``translation``."""
+        assert self.fingertips is not None
+        tips = forward_kinematics(posture, self.skeleton).keypoints_m[0, list(FINGERTIP_KEYPOINTS)]
+        intrinsics = frame.intrinsics
+        return self.fingertips.detect(
+            frame.depth_m,
+            (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy),
+            model_tips_m=tips @ rotation.T + translation,
+        )
 
     def _initial_translation(
         self,
@@ -468,6 +521,34 @@ def temporal_scores(
         return error
     previous = as_array("previous_rad", previous_rad, (N_JOINTS,), np.float64)
     return error + prior_px_per_rad * np.abs(postures - previous).mean(axis=1)
+
+
+def tip_targets_of(detections: Sequence[Detection]) -> NDArray[np.float64]:
+    """The refinement's fingertip targets from named detections.
+
+    Parameters
+    ----------
+    detections : sequence of Detection
+        With ``finger`` set by :func:`tracker.fingertips.detect.name_fingers` (Eq. 11
+        names each finger at most once) or None.
+
+    Returns
+    -------
+    (5, 3) float64
+        Camera-frame position of each finger's detection, thumb first, metres; NaN
+        rows for fingers without one.
+    """
+    targets = np.full((len(FINGERS), 3), np.nan)
+    named = [d for d in detections if d.finger is not None]
+    targets[[FINGERS.index(str(d.finger)) for d in named]] = detection_points(named)
+    return targets
+
+
+def _fingertip_detector(model: str | None) -> FingertipDetector | None:
+    """The fingertip detector of ``TrackerSettings.fingertip_model`` (None: none)."""
+    if model is None:
+        return None
+    return FingertipDetector(None if model == "default" else model)
 
 
 def _ray_rotation(intrinsics: CameraIntrinsics, pixel: NDArray[np.float64]) -> NDArray[np.float64]:

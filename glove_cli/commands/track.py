@@ -54,6 +54,22 @@ def add_tracker_options(parser: argparse.ArgumentParser) -> None:
         type=float,
         help="fits below this confidence mean no hand (default 0.02; 0 keeps every fit)",
     )
+    parser.add_argument(
+        "--fingertips",
+        action="store_true",
+        help="detect fingertips in the depth (the shipped model) and let them pull the "
+        "model's fingertips in the refinement",
+    )
+    parser.add_argument(
+        "--fingertip-model",
+        metavar="MODEL",
+        help="the same with another fingertip model (from glove fingertips train)",
+    )
+    parser.add_argument(
+        "--fingertip-weight",
+        type=float,
+        help="weight of a detected fingertip in the refinement (default 4; needs --fingertips)",
+    )
 
 
 def make_tracker(args: argparse.Namespace) -> Tracker:
@@ -85,6 +101,14 @@ def make_tracker(args: argparse.Namespace) -> Tracker:
         if not 0 <= args.min_confidence <= 1:
             raise ValueError(f"--min-confidence: expected 0 to 1, got {args.min_confidence}")
         settings = replace(settings, min_confidence=args.min_confidence)
+    if args.fingertips or args.fingertip_model:
+        settings = replace(settings, fingertip_model=args.fingertip_model or "default")
+    if args.fingertip_weight is not None:
+        if settings.fingertip_model is None:
+            raise ValueError("--fingertip-weight: needs --fingertips or --fingertip-model")
+        if not 0 <= args.fingertip_weight < math.inf:
+            raise ValueError(f"--fingertip-weight: expected 0 or more, got {args.fingertip_weight}")
+        settings = replace(settings, fingertip_weight=args.fingertip_weight)
     colors = args.colors
     beside = default_table_path(args.db)
     if colors is None and beside.exists():

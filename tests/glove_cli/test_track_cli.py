@@ -94,9 +94,13 @@ def test_bad_databases_and_inputs_exit_2(small_database, tmp_path):
         ("--refine-iterations", "100000", "--refine-iterations: expected 0 to 50"),
         ("--cascade", "8:0", "cascade: size and k must be positive, got 8:0"),
         ("--temporal-prior", "inf", "--temporal-prior: expected 0 or more"),
+        ("--fingertip-weight", "2", "--fingertip-weight: needs --fingertips"),
+        ("--fingertip-model", str(garbage), "garbage.h5"),
     ):
         argv = ["--db", str(small_database), "--out", out, option, value]
         assert_one_line_error(run_glove("track", str(sequence), *argv), message)
+    argv = ["--db", str(small_database), "--out", out, "--fingertips", "--fingertip-weight", "-1"]
+    assert_one_line_error(run_glove("track", str(sequence), *argv), "expected 0 or more, got -1")
 
 
 @pytest.mark.gl

@@ -202,6 +202,48 @@ def test_icp_converges_from_the_lookup_of_a_thesis_database(open_pinch_power_dat
     assert np.median(rotation_errors) < 1.0 and np.median(position_errors) < 0.002
 
 
+@pytest.mark.gl
+def test_fingertip_detections_are_named_and_reported(open_pinch_power_database, renderer):
+    from glovedb.hand_model import FINGERS, FINGERTIP_KEYPOINTS, forward_kinematics
+    from tracker.pipeline import Tracker, TrackerSettings, tip_targets_of
+
+    rotation, translation = np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.06, 0.45])
+    rendering = renderer.render(named_posture("open"), rotation, translation)
+    frame = Frame(0, rendering.color, rendering.depth_m, KINECT_V1)
+    settings = TrackerSettings(smoothing_frames=1, fingertip_model="default")
+    with Tracker(open_pinch_power_database, settings=settings) as tracker:
+        result = tracker.track(frame)
+        skeleton = tracker.skeleton
+    true_tips = forward_kinematics(named_posture("open"), skeleton).keypoints_m[0]
+    true_tips = true_tips[list(FINGERTIP_KEYPOINTS)] @ rotation.T + translation
+    assert result.hand_found and "fingertips" in result.timing_ms
+    detections = result.fingertip_detections
+    # An open hand at 45 cm: the shipped model finds every tip and Eq. 11 names it.
+    assert detections is not None and len(detections) == 5
+    for detection in detections:
+        true_tip = true_tips[FINGERS.index(str(detection.finger))]
+        assert np.linalg.norm(true_tip - [detection.x_m, detection.y_m, detection.z_m]) < 0.012
+    np.testing.assert_allclose(tip_targets_of(detections), true_tips, atol=0.012)
+    record = result.as_record()
+    assert {d["finger"] for d in record["fingertip_detections"]} == set(FINGERS)
+    with Tracker(
+        open_pinch_power_database, settings=replace(settings, fingertip_model=None)
+    ) as plain:
+        assert "fingertip_detections" not in plain.track(frame).as_record()
+
+
+def test_tip_targets_of_leaves_unnamed_fingers_empty():
+    from tracker.fingertips.detect import Detection
+    from tracker.pipeline import tip_targets_of
+
+    detections = [Detection(1.0, 2.0, 0.1, 0.2, 0.5, 3.0, finger="ring"),
+                  Detection(5.0, 6.0, 0.3, 0.1, 0.6, 2.0)]  # fmt: skip
+    targets = tip_targets_of(detections)
+    np.testing.assert_array_equal(targets[3], [0.1, 0.2, 0.5])
+    assert np.isnan(np.delete(targets, 3, axis=0)).all()
+    assert np.isnan(tip_targets_of([])).all()
+
+
 def test_temporal_scores_prefer_the_previous_posture_by_the_given_weight():
     from tracker.pipeline import temporal_scores
 
