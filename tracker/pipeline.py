@@ -141,7 +141,7 @@ class TrackerSettings:
     temporal_prior_px: float = 1.0
     fingertip_model: str | None = None
     fingertip_weight: float = 4.0
-    fingertip_deadband_m: float = 0.01
+    fingertip_deadband_m: float = 0.015
     workers: int | None = None
 
 
