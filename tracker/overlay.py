@@ -9,7 +9,8 @@ new one, leaving the input untouched. Pixel coordinates follow the OpenCV conven
 - :func:`outline_mask` / :func:`draw_outline` / :func:`draw_model_outline`: the
   silhouette of the posed glove mesh, from its camera-facing triangles rasterised into
   a mask, drawn as the mask's outer contour;
-- :func:`draw_fingertips`: fingertip detections as circles labelled with the finger;
+- :func:`draw_fingertips`: fingertips as circles labelled with the finger;
+- :func:`draw_detections`: depth fingertip detections as small crosses;
 - :func:`draw_status`: a text line (frame, fps, confidence);
 - :func:`draw_record`: all of the above for one ``poses.jsonl`` record.
 
@@ -246,6 +247,36 @@ def draw_fingertips(
     return canvas
 
 
+def draw_detections(
+    image: ArrayLike, detections: Iterable[Mapping[str, Any]], *, size_px: int = 9
+) -> NDArray[np.uint8]:
+    """Draw depth fingertip detections as crosses, in their finger's color when named.
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8
+    detections : iterable of mapping
+        ``fingertip_detections`` objects of a ``poses.jsonl`` record (``u_px``,
+        ``v_px``, ``finger`` name or None).
+    size_px : int
+        Width of a cross.
+
+    Returns
+    -------
+    (H, W, 3) uint8
+    """
+    canvas = _copy_image(image)
+    for tip in detections:
+        point = np.array([tip["u_px"], tip["v_px"]], dtype=np.float64)
+        if not np.isfinite(point).all():
+            continue
+        finger = tip.get("finger")
+        color = FINGER_COLORS.get(finger, UNKNOWN_FINGER_COLOR) if finger else UNKNOWN_FINGER_COLOR
+        centre = (round(point[0]), round(point[1]))
+        cv2.drawMarker(canvas, centre, color, cv2.MARKER_TILTED_CROSS, size_px, 2, cv2.LINE_AA)
+    return canvas
+
+
 def status_text(frame: int, *, fps: float | None = None, confidence: float | None = None) -> str:
     """``"frame 12 | 29.8 fps | confidence 0.81"``; ``"no hand"`` without confidence."""
     parts = [f"frame {frame}"]
@@ -276,7 +307,8 @@ def draw_record(
     mesh: HandMesh | None = None,
     fps: float | None = None,
 ) -> NDArray[np.uint8]:
-    """Draw one ``poses.jsonl`` record: outline, skeleton, fingertips and status.
+    """Draw one ``poses.jsonl`` record: outline, skeleton, fingertips (and the depth
+    fingertip detections, when the record has them) and status.
 
     Parameters
     ----------
@@ -308,6 +340,7 @@ def draw_record(
     if found and record.get("keypoints_2d_px") is not None:
         canvas = draw_skeleton(canvas, record["keypoints_2d_px"])
     canvas = draw_fingertips(canvas, record.get("fingertips") or ())
+    canvas = draw_detections(canvas, record.get("fingertip_detections") or ())
     confidence = record.get("confidence") if found else None
     return draw_status(canvas, int(record.get("frame", 0)), fps=fps, confidence=confidence)
 

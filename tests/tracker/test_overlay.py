@@ -14,6 +14,7 @@ from tracker import overlay
 from tracker.overlay import (
     FINGER_COLORS,
     VideoWriter,
+    draw_detections,
     draw_fingertips,
     draw_model_outline,
     draw_outline,
@@ -134,6 +135,14 @@ def test_fingertips_status_and_record(hand_mesh):
     full = draw_record(black(), record, KINECT_V1, mesh=hand_mesh, fps=30)
     bare = draw_record(black(), {"frame": 8, "hand_found": False}, KINECT_V1)
     assert full.any(axis=2).sum() > bare.any(axis=2).sum() > 0
+    detections = [{"finger": "ring", "u_px": 600.0, "v_px": 400.0},
+                  {"finger": None, "u_px": 500.0, "v_px": 420.0}]  # fmt: skip
+    crossed = draw_detections(black(), detections)
+    assert tuple(crossed[400, 600]) == FINGER_COLORS["ring"]
+    assert crossed[420, 500].any() and not crossed[400, 610].any()
+    with_detections = draw_record(black(), {**record, "fingertip_detections": detections},
+                                  KINECT_V1)  # fmt: skip
+    assert tuple(with_detections[400, 600]) == FINGER_COLORS["ring"]
 
 
 def frames(n: int = 5) -> list[np.ndarray]:
