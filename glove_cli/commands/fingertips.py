@@ -59,11 +59,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
     detect = actions.add_parser(
         "detect",
-        help="detect fingertips in an RGB-D folder",
+        help="detect fingertips in an RGB-D folder, a recording or a camera",
         description="Write DIR/fingertips.jsonl (one record per frame: frame, fingertips) "
-        "and an overlay PNG per frame in DIR/overlay/ (or one contact sheet).",
+        "and an overlay PNG per frame in DIR/overlay/ (or one contact sheet). A camera "
+        "runs until Ctrl-C.",
     )
-    detect.add_argument("input", help="RGB-D folder (intrinsic.json, depth/NNNNNN.png)")
+    detect.add_argument(
+        "input",
+        help="RGB-D folder (intrinsic.json, depth/NNNNNN.png), RealSense .bag file, "
+        "'realsense' or 'kinect'",
+    )
     _add_model_options(detect)
     detect.add_argument("--out", required=True, help="output folder")
     detect.add_argument(
@@ -212,12 +217,14 @@ def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
 
 def run_detect(args: argparse.Namespace) -> int:
     from tracker.fingertips.detector import FingertipDetector
-    from tracker.fingertips.sequence import open_depth_sequence
+    from tracker.fingertips.sequence import open_depth_source
     from tracker.overlay import write_rgb
 
     model, config = _load_model(args)
     detector = FingertipDetector(model, config=config)
-    sequence = open_depth_sequence(args.input)
+    source = open_depth_source(args.input)
+    if args.sheet and source.live:
+        raise ValueError(f"--sheet: {source.description} is a camera, whose frames do not end")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     # An earlier run's outputs are replaced, not mixed with these (a shorter run would
@@ -232,25 +239,28 @@ def run_detect(args: argparse.Namespace) -> int:
         (out / "overlay").rmdir()
     tiles = []
     elapsed = 0.0
+    count = 0
     with open(out / "fingertips.jsonl", "w") as stream:
-        for frame in _progress(sequence.frames, desc="detect", unit="frame"):
-            depth = sequence.read_depth(frame)
+        frames = _progress(source, total=source.n_frames, desc="detect", unit="frame")
+        for frame in frames:
             started = time.perf_counter()
-            record = detector.record(frame, depth, sequence.intrinsics, pose_guess=args.pose_guess)
+            record = detector.record(
+                frame.frame, frame.depth_m, frame.intrinsics, pose_guess=args.pose_guess
+            )
             elapsed += time.perf_counter() - started
             stream.write(json.dumps(record) + "\n")
-            picture = overlay(depth, record, sequence.intrinsics)
+            stream.flush()  # a camera run ends by Ctrl-C: keep every finished frame
+            count += 1
+            picture = overlay(frame.depth_m, record, frame.intrinsics)
             if args.sheet:
                 tiles.append(picture)
             else:
-                write_rgb(out / "overlay" / f"{frame:06d}.png", picture)
+                write_rgb(out / "overlay" / f"{frame.frame:06d}.png", picture)
     if args.sheet:
         write_rgb(out / "contact_sheet.png", contact_sheet(tiles))
-    n = len(sequence.frames)
-    count = sum(1 for _ in open(out / "fingertips.jsonl"))
     print(
         f"wrote {out / 'fingertips.jsonl'} ({count} frames, "
-        f"{1000 * elapsed / max(n, 1):.1f} ms per frame) and "
+        f"{1000 * elapsed / max(count, 1):.1f} ms per frame) and "
         + ("contact_sheet.png" if args.sheet else "overlay/NNNNNN.png")
     )
     return 0

@@ -55,7 +55,7 @@ def run_glove(*args: str) -> subprocess.CompletedProcess:
     [
         (["fingertips"], "ACTION"),
         (["fingertips", "eval", "/no/such/folder"], "/no/such/folder"),
-        (["fingertips", "detect", "/no/such/folder", "--out", "x"], "not a folder"),
+        (["fingertips", "detect", "/no/such/folder", "--out", "x"], "no such folder or file"),
         (["fingertips", "eval", ".", "--model", "/no/model.npz"], "no such model file"),
         (["fingertips", "train", "/no/config.toml", "--out", "m.npz"], "cannot read config"),
         (["fingertips", "train", "/no/config.toml", "--out", "m.txt"], "ends in .npz"),
@@ -104,6 +104,35 @@ def test_detect_writes_a_record_and_an_overlay_per_frame(tmp_path: Path, capsys)
     assert main(["fingertips", "detect", str(tmp_path / "seq"), "--out", str(out), "--sheet"]) == 0
     assert cv2.imread(str(out / "contact_sheet.png")).shape == (60, 3 * 80, 3)
     assert not (out / "overlay").exists()  # the earlier overlays went with their folder
+
+
+def test_detect_reads_recordings_and_cameras_through_the_tracker_sources(
+    tmp_path: Path, capsys, monkeypatch
+) -> None:
+    from glovedb.camera import CameraIntrinsics
+    from tracker import sources
+
+    _write_folder(tmp_path / "seq", n_frames=2)
+    depth = cv2.imread(str(tmp_path / "seq" / "depth" / "000000.png"), cv2.IMREAD_UNCHANGED)
+    camera = CameraIntrinsics(80, 60, 70.0, 70.0, 39.5, 29.5)
+    opened = []
+
+    def fake_camera(spec, **options):  # what open_source("realsense") gives with a camera
+        opened.append(spec)
+        frames = [(np.zeros((60, 80, 3), np.uint8), depth, camera)] * 2
+        return sources.Source(sources.frames_from_arrays(frames), "realsense", "realsense")
+
+    monkeypatch.setattr(sources, "open_source", fake_camera)
+    assert main(["fingertips", "detect", "realsense", "--out", str(tmp_path / "live")]) == 0
+    assert main(["fingertips", "detect", str(tmp_path / "seq"), "--out", str(tmp_path / "f")]) == 0
+    assert opened == ["realsense"]  # the folder did not go through open_source
+    live = (tmp_path / "live" / "fingertips.jsonl").read_text()
+    assert live == (tmp_path / "f" / "fingertips.jsonl").read_text()
+    assert len(list((tmp_path / "live" / "overlay").glob("*.png"))) == 2
+    capsys.readouterr()
+    argv = ["fingertips", "detect", "realsense", "--out", str(tmp_path / "x"), "--sheet"]
+    assert main(argv) == 2
+    assert "a camera, whose frames do not end" in capsys.readouterr().err
 
 
 def test_detect_replaces_an_earlier_run_and_refuses_odd_names(tmp_path: Path, capsys) -> None:

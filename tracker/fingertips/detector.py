@@ -153,12 +153,13 @@ class FingertipDetector:
             self._postures = np.stack(list(load_named_postures().values()))
         return self._postures
 
-    def run(self, folder: str | os.PathLike[str], *, pose_guess: bool = False) -> Iterator[dict]:
-        """The records of every depth frame of an RGB-D folder, in frame order."""
-        from tracker.fingertips.sequence import open_depth_sequence
+    def run(self, source: str | os.PathLike[str], *, pose_guess: bool = False) -> Iterator[dict]:
+        """The records of every depth frame of an RGB-D folder, a ``.bag`` recording or a
+        camera (``"realsense"``, ``"kinect"``; until the caller stops), in frame order.
 
-        sequence = open_depth_sequence(folder)
-        for frame in sequence.frames:
-            yield self.record(
-                frame, sequence.read_depth(frame), sequence.intrinsics, pose_guess=pose_guess
-            )
+        See :func:`tracker.fingertips.sequence.open_depth_source`.
+        """
+        from tracker.fingertips.sequence import open_depth_source
+
+        for frame in open_depth_source(source):
+            yield self.record(frame.frame, frame.depth_m, frame.intrinsics, pose_guess=pose_guess)

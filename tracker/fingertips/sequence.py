@@ -1,8 +1,10 @@
-"""Reading the depth frames of an RGB-D folder (CONVENTIONS.md layout).
+"""Reading the depth frames of an RGB-D folder (CONVENTIONS.md layout), or of a recording.
 
 ``SEQ/intrinsic.json`` (Open3D JSON), ``SEQ/depth/NNNNNN.png`` (uint16 in
 ``depth_scale`` units per metre, 0 = missing) and an optional ``SEQ/meta.json`` with
 ``depth_scale`` (default 1000). Color is not needed for fingertip detection.
+:func:`open_depth_source` also reads RealSense ``.bag`` recordings and live cameras,
+through :func:`tracker.sources.open_source`.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -133,3 +136,80 @@ def open_depth_sequence(folder: str | os.PathLike[str]) -> DepthSequence:
     if not frames:
         raise ValueError(f"{root}: no depth/NNNNNN.png frames")
     return DepthSequence(root, intrinsics, size, read_depth_scale(root), frames)
+
+
+@dataclass(frozen=True)
+class DepthFrame:
+    """One depth frame for the fingertip detector.
+
+    Attributes
+    ----------
+    frame : int
+        Frame number (from the file name, or counted from 0 in a recording).
+    depth_m : (H, W) float32
+        Metres, 0 where missing.
+    intrinsics : (4,) float64
+        ``(fx, fy, cx, cy)`` in pixels.
+    """
+
+    frame: int
+    depth_m: NDArray[np.float32]
+    intrinsics: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class DepthSource:
+    """Depth frames from a folder, a recording or a camera.
+
+    Attributes
+    ----------
+    frames : iterator of DepthFrame
+    description : str
+        What was opened, for messages.
+    n_frames : int or None
+        Known for folders.
+    live : bool
+        A camera: the frames go on until the caller stops.
+    """
+
+    frames: Iterator[DepthFrame]
+    description: str
+    n_frames: int | None
+    live: bool
+
+    def __iter__(self) -> Iterator[DepthFrame]:
+        return self.frames
+
+
+def open_depth_source(spec: str | os.PathLike[str]) -> DepthSource:
+    """Open the depth frames of an RGB-D folder, a ``.bag`` recording or a live camera.
+
+    A folder needs only ``intrinsic.json`` and ``depth/`` (:func:`open_depth_sequence`);
+    anything else goes to :func:`tracker.sources.open_source` (a RealSense ``.bag``,
+    ``"realsense"``, ``"kinect"``), whose color frames are not used.
+
+    Raises
+    ------
+    ValueError
+        One line naming what could not be opened.
+    """
+    if Path(spec).is_dir():
+        sequence = open_depth_sequence(spec)
+
+        def from_folder() -> Iterator[DepthFrame]:
+            for frame in sequence.frames:
+                yield DepthFrame(frame, sequence.read_depth(frame), sequence.intrinsics)
+
+        return DepthSource(from_folder(), str(spec), len(sequence.frames), live=False)
+    from tracker.sources import open_source
+
+    source = open_source(spec)
+
+    def from_source() -> Iterator[DepthFrame]:
+        for frame in source:
+            camera = frame.intrinsics
+            intrinsics = np.array([camera.fx, camera.fy, camera.cx, camera.cy])
+            yield DepthFrame(frame.index, frame.depth_m, intrinsics)
+
+    live = source.kind in ("realsense", "kinect")
+    return DepthSource(from_source(), source.description, source.n_frames, live=live)
