@@ -70,7 +70,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "'realsense' or 'kinect'",
     )
     _add_model_options(detect)
-    detect.add_argument("--out", required=True, help="output folder")
+    detect.add_argument(
+        "--out",
+        required=True,
+        help="output folder, or - to stream the records to standard output (no pictures), "
+        "e.g. into another tracker",
+    )
     detect.add_argument(
         "--sheet", action="store_true", help="one contact sheet instead of an overlay per frame"
     )
@@ -225,6 +230,10 @@ def run_detect(args: argparse.Namespace) -> int:
     source = open_depth_source(args.input)
     if args.sheet and source.live:
         raise ValueError(f"--sheet: {source.description} is a camera, whose frames do not end")
+    if args.out == "-":
+        if args.sheet:
+            raise ValueError("--sheet: needs an output folder, not --out -")
+        return _stream_records(detector, source, pose_guess=args.pose_guess)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     # An earlier run's outputs are replaced, not mixed with these (a shorter run would
@@ -263,6 +272,22 @@ def run_detect(args: argparse.Namespace) -> int:
         f"{1000 * elapsed / max(count, 1):.1f} ms per frame) and "
         + ("contact_sheet.png" if args.sheet else "overlay/NNNNNN.png")
     )
+    return 0
+
+
+def _stream_records(detector: Any, source: Any, *, pose_guess: bool) -> int:
+    """Write one JSON record per frame to standard output as soon as it is ready."""
+    count, elapsed = 0, 0.0
+    for frame in source:
+        started = time.perf_counter()
+        record = detector.record(
+            frame.frame, frame.depth_m, frame.intrinsics, pose_guess=pose_guess
+        )
+        elapsed += time.perf_counter() - started
+        sys.stdout.write(json.dumps(record) + "\n")
+        sys.stdout.flush()
+        count += 1
+    print(f"{count} frames, {1000 * elapsed / max(count, 1):.1f} ms per frame", file=sys.stderr)
     return 0
 
 

@@ -133,6 +133,11 @@ def test_detect_reads_recordings_and_cameras_through_the_tracker_sources(
     argv = ["fingertips", "detect", "realsense", "--out", str(tmp_path / "x"), "--sheet"]
     assert main(argv) == 2
     assert "a camera, whose frames do not end" in capsys.readouterr().err
+    # --out - streams the same records to standard output, for another program.
+    assert main(["fingertips", "detect", "realsense", "--out", "-"]) == 0
+    streamed = capsys.readouterr()
+    assert streamed.out == live and "2 frames" in streamed.err
+    assert not (Path("-")).exists()
 
 
 def test_detect_replaces_an_earlier_run_and_refuses_odd_names(tmp_path: Path, capsys) -> None:
