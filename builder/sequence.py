@@ -567,7 +567,7 @@ def render_frames(
     depth_noise = noise_preset(settings.noise)
     color_noise = color_noise_preset(settings.noise)
     gains = sequence_gains(color_noise, rng=scene_rng)
-    intrinsics = np.array([camera.fx, camera.fy, camera.cx, camera.cy])
+    intrinsics = camera.pinhole
     for frame in range(len(postures)):
         rendering = renderer.render(postures[frame], rotations[frame], translations[frame])
         color, depth, mask = composite(rendering.color, rendering.depth_m, background)

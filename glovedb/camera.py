@@ -40,6 +40,11 @@ class CameraIntrinsics:
         """``(3, 3)`` float64 camera matrix K."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
+    @property
+    def pinhole(self) -> NDArray[np.float64]:
+        """``(4,)`` float64 ``(fx, fy, cx, cy)``, the form the fingertip detector takes."""
+        return np.array([self.fx, self.fy, self.cx, self.cy])
+
     def project(self, points_m: ArrayLike) -> NDArray[np.float64]:
         """Pixel coordinates ``(..., 2)`` of camera-frame points ``(..., 3)`` (z > 0)."""
         p = as_array("points_m", points_m, (..., 3), np.float64)

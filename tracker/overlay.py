@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
@@ -231,12 +231,8 @@ def draw_fingertips(
     (H, W, 3) uint8
     """
     canvas = _copy_image(image)
-    for tip in fingertips:
-        point = np.array([tip["u_px"], tip["v_px"]], dtype=np.float64)
-        if not np.isfinite(point).all():
-            continue
+    for tip, point, color in _tip_points(fingertips):
         finger = tip.get("finger")
-        color = FINGER_COLORS.get(finger, UNKNOWN_FINGER_COLOR) if finger else UNKNOWN_FINGER_COLOR
         centre = _fixed_point(point[None])[0]
         cv2.circle(canvas, centre, radius_px << _SHIFT, color, 2, cv2.LINE_AA, _SHIFT)
         label = finger or "?"
@@ -266,15 +262,22 @@ def draw_detections(
     (H, W, 3) uint8
     """
     canvas = _copy_image(image)
-    for tip in detections:
-        point = np.array([tip["u_px"], tip["v_px"]], dtype=np.float64)
-        if not np.isfinite(point).all():
-            continue
-        finger = tip.get("finger")
-        color = FINGER_COLORS.get(finger, UNKNOWN_FINGER_COLOR) if finger else UNKNOWN_FINGER_COLOR
+    for _, point, color in _tip_points(detections):
         centre = (round(point[0]), round(point[1]))
         cv2.drawMarker(canvas, centre, color, cv2.MARKER_TILTED_CROSS, size_px, 2, cv2.LINE_AA)
     return canvas
+
+
+def _tip_points(
+    tips: Iterable[Mapping[str, Any]],
+) -> Iterator[tuple[Mapping[str, Any], NDArray[np.float64], RGB]]:
+    """Each fingertip object with a finite image position, that position ``(2,)`` and its
+    finger's color (:data:`UNKNOWN_FINGER_COLOR` when unnamed)."""
+    for tip in tips:
+        point = np.array([tip["u_px"], tip["v_px"]], dtype=np.float64)
+        if np.isfinite(point).all():
+            finger = tip.get("finger")
+            yield tip, point, FINGER_COLORS.get(finger or "", UNKNOWN_FINGER_COLOR)
 
 
 def status_text(frame: int, *, fps: float | None = None, confidence: float | None = None) -> str:

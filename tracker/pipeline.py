@@ -418,11 +418,8 @@ class Tracker(Closing):
         fingertips of the model posed with ``posture`` at ``rotation``, ``translation``."""
         assert self.fingertips is not None
         tips = forward_kinematics(posture, self.skeleton).keypoints_m[0, list(FINGERTIP_KEYPOINTS)]
-        intrinsics = frame.intrinsics
         return self.fingertips.detect(
-            frame.depth_m,
-            (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy),
-            model_tips_m=tips @ rotation.T + translation,
+            frame.depth_m, frame.intrinsics.pinhole, model_tips_m=tips @ rotation.T + translation
         )
 
     def _initial_translation(

@@ -47,7 +47,7 @@ def test_shipped_model_finds_the_tips_of_a_rendered_open_hand(renderer) -> None:
     depth = renderer.render_labels(posture, rotation, translation).depth_m
     keypoints = forward_kinematics(posture, skeleton).keypoints_m[0] @ rotation.T + translation
     tips = keypoints[list(FINGERTIP_KEYPOINTS)]
-    camera = (KINECT_V1.fx, KINECT_V1.fy, KINECT_V1.cx, KINECT_V1.cy)
+    camera = KINECT_V1.pinhole
     model = load_forest()
     detections = detect_fingertips(depth, camera, model, config=model_detector_config(model))
     found = [np.linalg.norm(tips - (d.x_m, d.y_m, d.z_m), axis=1).min() for d in detections]
@@ -67,7 +67,7 @@ def test_pose_guess_from_detections_on_a_rendered_open_hand(renderer, view: str)
     posture = named_posture("open")
     rotation, translation = named_view(view, 0.45, renderer.mesh.skeleton.hand_length_m)
     depth = renderer.render_labels(posture, rotation, translation).depth_m
-    camera = (KINECT_V1.fx, KINECT_V1.fy, KINECT_V1.cx, KINECT_V1.cy)
+    camera = KINECT_V1.pinhole
     detector = FingertipDetector()
     record = detector.record(0, depth, camera, pose_guess=True)
     guess = record["pose_guess"]

@@ -24,6 +24,18 @@ def coarse_mesh():
     return make_hand_mesh(make_skeleton(), spacing_m=0.003)
 
 
+@pytest.fixture(scope="module")
+def power_view(renderer):
+    """The power grasp from a view that hides the little finger behind the others:
+    posture, rotation, translation and the rendered labeled point cloud."""
+    posture = named_posture("power")
+    rotation = axis_angle_to_matrix([1.0, 0.2, 0.3], 2.7)
+    translation = np.array([0.02, 0.03, 0.55])
+    rendering = renderer.render_labels(posture, rotation, translation)
+    cloud = labeled_point_cloud(hand_region(rendering.labels, rendering.depth_m), KINECT_V1)
+    return posture, rotation, translation, cloud
+
+
 def test_posture_jacobian_matches_central_differences(coarse_mesh):
     posture = named_posture("power")
     vertices = np.arange(0, len(coarse_mesh.rest_vertices_m), 97)
@@ -38,12 +50,8 @@ def test_posture_jacobian_matches_central_differences(coarse_mesh):
 
 
 @pytest.mark.gl
-def test_refinement_recovers_a_perturbed_posture(renderer, coarse_mesh):
-    posture = named_posture("power")
-    rotation = axis_angle_to_matrix([1.0, 0.2, 0.3], 2.7)
-    translation = np.array([0.02, 0.03, 0.55])
-    rendering = renderer.render_labels(posture, rotation, translation)
-    cloud = labeled_point_cloud(hand_region(rendering.labels, rendering.depth_m), KINECT_V1)
+def test_refinement_recovers_a_perturbed_posture(power_view, coarse_mesh):
+    posture, rotation, translation, cloud = power_view
     # Joints whose fingers this view shows (the little finger is hidden behind the
     # others here: nothing could correct it).
     joints = [JOINT_NAMES.index(n) for n in ("index_mcp_flex", "middle_pip_flex", "ring_mcp_flex")]
@@ -63,12 +71,8 @@ def test_refinement_recovers_a_perturbed_posture(renderer, coarse_mesh):
 
 
 @pytest.mark.gl
-def test_fingertip_targets_correct_a_finger_the_cloud_does_not_show(renderer, coarse_mesh):
-    posture = named_posture("power")
-    rotation = axis_angle_to_matrix([1.0, 0.2, 0.3], 2.7)
-    translation = np.array([0.02, 0.03, 0.55])
-    rendering = renderer.render_labels(posture, rotation, translation)
-    cloud = labeled_point_cloud(hand_region(rendering.labels, rendering.depth_m), KINECT_V1)
+def test_fingertip_targets_correct_a_finger_the_cloud_does_not_show(power_view, coarse_mesh):
+    posture, rotation, translation, cloud = power_view
     # The little finger is hidden in this view (see the test above): only its
     # fingertip target can correct it.
     joints = [JOINT_NAMES.index(n) for n in ("little_mcp_flex", "little_pip_flex")]

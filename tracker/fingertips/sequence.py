@@ -207,9 +207,7 @@ def open_depth_source(spec: str | os.PathLike[str]) -> DepthSource:
 
     def from_source() -> Iterator[DepthFrame]:
         for frame in source:
-            camera = frame.intrinsics
-            intrinsics = np.array([camera.fx, camera.fy, camera.cx, camera.cy])
-            yield DepthFrame(frame.index, frame.depth_m, intrinsics)
+            yield DepthFrame(frame.index, frame.depth_m, frame.intrinsics.pinhole)
 
     live = source.kind in ("realsense", "kinect")
     return DepthSource(from_source(), source.description, source.n_frames, live=live)
