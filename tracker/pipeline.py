@@ -177,7 +177,7 @@ class TrackingResult:
     Pose fields are ``None`` when ``hand_found`` is false. ``fingertips`` are the
     fitted model's; ``fingertip_detections`` are the depth detections the refinement
     used (named by Eq. 11 where assigned), None when the tracker has no fingertip
-    model.
+    model or found no hand (the detector runs after the glove fit).
     """
 
     frame: int
