@@ -6,6 +6,8 @@ import argparse
 import itertools
 from pathlib import Path
 
+from glove_cli.commands.track import add_source_options, source_options
+
 
 def default_table_path(database: str | Path) -> Path:
     """Where a database's calibrated color table lives: ``DB.colors.npz`` beside it."""
@@ -29,6 +31,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--frames", type=int, default=30, help="frames to use (default: 30)")
     parser.add_argument("--every", type=int, default=5, help="use every n-th frame (default: 5)")
+    add_source_options(parser)
     parser.set_defaults(run=run)
 
 
@@ -51,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
         if out.resolve() == Path(args.db).resolve():
             raise ValueError(f"{out}: that is the database; choose another --out")
         load_table(out)  # only an earlier color table is replaced, nothing else
-    source = open_source(args.input)
+    source = open_source(args.input, **source_options(args))
     frames = list(itertools.islice(source, 0, args.frames * args.every, args.every))
     with Tracker(args.db) as tracker:
         result = calibrate(frames, tracker)

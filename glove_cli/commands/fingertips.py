@@ -17,6 +17,8 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from glove_cli.commands.track import add_source_options, source_options
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
@@ -79,6 +81,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     detect.add_argument(
         "--sheet", action="store_true", help="one contact sheet instead of an overlay per frame"
     )
+    add_source_options(detect)
     detect.add_argument(
         "--pose-guess",
         action="store_true",
@@ -227,7 +230,7 @@ def run_detect(args: argparse.Namespace) -> int:
 
     model, config = _load_model(args)
     detector = FingertipDetector(model, config=config)
-    source = open_depth_source(args.input)
+    source = open_depth_source(args.input, **source_options(args))
     if args.sheet and source.live:
         raise ValueError(f"--sheet: {source.description} is a camera, whose frames do not end")
     if args.out == "-":

@@ -6,7 +6,8 @@ import argparse
 import math
 import sys
 from collections.abc import Callable, Iterator
-from typing import TYPE_CHECKING
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from tracker.pipeline import Tracker
@@ -22,11 +23,47 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("input", help="RGB-D folder, RealSense .bag file, 'realsense' or 'kinect'")
     parser.add_argument("--db", required=True, help="posture database (.h5)")
     parser.add_argument("--out", required=True, help="output folder")
+    add_source_options(parser)
     add_tracker_options(parser)
     parser.add_argument("--no-overlay", action="store_true", help="do not write the overlay video")
     parser.add_argument("--no-bvh", action="store_true", help="do not write the BVH file")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(run=run)
+
+
+def add_source_options(parser: argparse.ArgumentParser) -> None:
+    """How the input is read; shared by ``track``, ``calibrate`` and ``fingertips detect``."""
+    parser.add_argument(
+        "--depth-scale",
+        type=float,
+        help="depth units per metre of the input (default: meta.json, the recording's "
+        "metadata or 1000; e.g. 4000 for an L515 .bag)",
+    )
+    parser.add_argument(
+        "--intrinsics",
+        metavar="FILE",
+        help="intrinsic.json of the color camera, for 'kinect' (whose Open3D interface "
+        "does not report it)",
+    )
+
+
+def source_options(args: argparse.Namespace) -> dict[str, Any]:
+    """``depth_scale`` and ``intrinsics`` keywords of :func:`tracker.sources.open_source`
+    from :func:`add_source_options`' options, checked."""
+    from glovedb.camera import load_intrinsics
+
+    options: dict[str, Any] = {}
+    if args.depth_scale is not None:
+        if not 0 < args.depth_scale < math.inf:
+            raise ValueError(f"--depth-scale: expected a positive number, got {args.depth_scale}")
+        options["depth_scale"] = args.depth_scale
+    if args.intrinsics is not None:
+        if str(args.input).lower() != "kinect" or Path(args.input).exists():
+            raise ValueError(
+                "--intrinsics: only for a live 'kinect' (folders and recordings carry their own)"
+            )
+        options["intrinsics"] = load_intrinsics(args.intrinsics)
+    return options
 
 
 def add_tracker_options(parser: argparse.ArgumentParser) -> None:
@@ -135,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
     from tracker.run import track_source
     from tracker.sources import open_source
 
-    source = open_source(args.input)
+    source = open_source(args.input, **source_options(args))
     with make_tracker(args) as tracker:
         summary = track_source(
             source, tracker, args.out, overlay=not args.no_overlay, bvh=not args.no_bvh,

@@ -96,6 +96,8 @@ def test_bad_databases_and_inputs_exit_2(small_database, tmp_path):
         ("--temporal-prior", "inf", "--temporal-prior: expected 0 or more"),
         ("--fingertip-weight", "2", "--fingertip-weight: needs --fingertips"),
         ("--fingertip-model", str(garbage), "garbage.h5"),
+        ("--depth-scale", "0", "--depth-scale: expected a positive number, got 0"),
+        ("--intrinsics", str(garbage), "--intrinsics: only for a live 'kinect'"),
     ):
         argv = ["--db", str(small_database), "--out", out, option, value]
         assert_one_line_error(run_glove("track", str(sequence), *argv), message)
@@ -149,3 +151,22 @@ def test_calibrate_replaces_only_an_earlier_color_table(small_database, tmp_path
     assert_one_line_error(run_glove(*argv), "--out: expected a file name")
     argv = ["calibrate", str(sequence), "--db", str(small_database), "--out", "no/where.npz"]
     assert_one_line_error(run_glove(*argv), "no: folder does not exist")
+
+
+def test_source_options_reach_the_source(tmp_path):
+    import argparse
+
+    from glove_cli.commands.track import source_options
+    from tracker.sources import open_source
+
+    sequence = write_sequence(tmp_path / "seq", 1, depth_mm=400)
+    args = argparse.Namespace(input=str(sequence), depth_scale=500.0, intrinsics=None)
+    frame = next(iter(open_source(args.input, **source_options(args))))
+    assert np.allclose(frame.depth_m, 0.8)  # 400 units at 500 per metre, not 1000
+    kinect = argparse.Namespace(input="kinect", depth_scale=None,
+                                intrinsics=str(tmp_path / "missing.json"))  # fmt: skip
+    with pytest.raises(ValueError, match=r"missing\.json: cannot read camera intrinsics"):
+        source_options(kinect)
+    save_intrinsics(CameraIntrinsics(64, 48, 60.0, 60.0, 31.5, 23.5), tmp_path / "k.json")
+    kinect.intrinsics = str(tmp_path / "k.json")
+    assert source_options(kinect)["intrinsics"].fx == 60.0

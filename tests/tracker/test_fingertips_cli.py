@@ -133,6 +133,11 @@ def test_detect_reads_recordings_and_cameras_through_the_tracker_sources(
     argv = ["fingertips", "detect", "realsense", "--out", str(tmp_path / "x"), "--sheet"]
     assert main(argv) == 2
     assert "a camera, whose frames do not end" in capsys.readouterr().err
+    # A depth scale reaches the frames of a folder as of a recording.
+    from tracker.fingertips.sequence import open_depth_source
+
+    halved = next(iter(open_depth_source(tmp_path / "seq", depth_scale=500.0)))
+    assert halved.depth_m.max() == pytest.approx(0.8)  # 400 units at 500 per metre
     # --out - streams the same records to standard output, for another program.
     assert main(["fingertips", "detect", "realsense", "--out", "-"]) == 0
     streamed = capsys.readouterr()

@@ -13,12 +13,14 @@ import json
 import math
 import os
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+
+from glovedb.camera import CameraIntrinsics
 
 
 @dataclass(frozen=True)
@@ -181,12 +183,25 @@ class DepthSource:
         return self.frames
 
 
-def open_depth_source(spec: str | os.PathLike[str]) -> DepthSource:
+def open_depth_source(
+    spec: str | os.PathLike[str],
+    *,
+    depth_scale: float | None = None,
+    intrinsics: CameraIntrinsics | None = None,
+) -> DepthSource:
     """Open the depth frames of an RGB-D folder, a ``.bag`` recording or a live camera.
 
     A folder needs only ``intrinsic.json`` and ``depth/`` (:func:`open_depth_sequence`);
     anything else goes to :func:`tracker.sources.open_source` (a RealSense ``.bag``,
     ``"realsense"``, ``"kinect"``), whose color frames are not used.
+
+    Parameters
+    ----------
+    spec : str or path
+    depth_scale : float, optional
+        Depth units per metre; overrides ``meta.json`` or the recording's value.
+    intrinsics : CameraIntrinsics, optional
+        Only for ``"kinect"`` (see :func:`tracker.sources.open_source`).
 
     Raises
     ------
@@ -195,19 +210,21 @@ def open_depth_source(spec: str | os.PathLike[str]) -> DepthSource:
     """
     if Path(spec).is_dir():
         sequence = open_depth_sequence(spec)
+        if depth_scale is not None:
+            sequence = replace(sequence, depth_scale=float(depth_scale))
 
         def from_folder() -> Iterator[DepthFrame]:
             for frame in sequence.frames:
                 yield DepthFrame(frame, sequence.read_depth(frame), sequence.intrinsics)
 
         return DepthSource(from_folder(), str(spec), len(sequence.frames), live=False)
-    from tracker.sources import open_source
+    from tracker.sources import LIVE_CAMERAS, open_source
 
-    source = open_source(spec)
+    source = open_source(spec, depth_scale=depth_scale, intrinsics=intrinsics)
 
     def from_source() -> Iterator[DepthFrame]:
         for frame in source:
             yield DepthFrame(frame.index, frame.depth_m, frame.intrinsics.pinhole)
 
-    live = source.kind in ("realsense", "kinect")
+    live = source.kind in LIVE_CAMERAS
     return DepthSource(from_source(), source.description, source.n_frames, live=live)
