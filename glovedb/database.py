@@ -119,10 +119,10 @@ class GloveDatabase(Closing):
                     f"{self.path}: damaged database, entries/{name} outside 0..{count - 1}"
                 )
         # Every entry is seen from its view: its rotation is the view's, a rotation.
-        view_rotations = file["views/rotation"][()].astype(np.float64)
-        gram = np.einsum("nji,njk->nik", view_rotations, view_rotations)
+        view_rotations = file["views/rotation"][()]
+        gram = np.einsum("nji,njk->nik", view_rotations, view_rotations, dtype=np.float64)
         if not np.allclose(gram, np.eye(3), atol=1e-4) or not np.array_equal(
-            file["entries/rotation"][()], file["views/rotation"][()][ids["view_id"]]
+            file["entries/rotation"][()], view_rotations[ids["view_id"]]
         ):
             raise ValueError(f"{self.path}: damaged database, entry rotations are not its views'")
 

@@ -13,9 +13,9 @@ import json
 import math
 import sys
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 from glove_cli.commands.track import add_source_options, source_options
 
@@ -236,7 +236,9 @@ def run_detect(args: argparse.Namespace) -> int:
     if args.out == "-":
         if args.sheet:
             raise ValueError("--sheet: needs an output folder, not --out -")
-        return _stream_records(detector, source, pose_guess=args.pose_guess)
+        count, seconds = _write_records(detector, source, sys.stdout, pose_guess=args.pose_guess)
+        print(f"{count} frames, {1000 * seconds / max(count, 1):.1f} ms per frame", file=sys.stderr)
+        return 0
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     # An earlier run's outputs are replaced, not mixed with these (a shorter run would
@@ -250,48 +252,53 @@ def run_detect(args: argparse.Namespace) -> int:
     elif (out / "overlay").is_dir() and not any((out / "overlay").iterdir()):
         (out / "overlay").rmdir()
     tiles = []
-    elapsed = 0.0
-    count = 0
+
+    def draw(frame: Any, record: dict[str, Any]) -> None:
+        picture = overlay(frame.depth_m, record, frame.intrinsics)
+        if args.sheet:
+            tiles.append(picture)
+        else:
+            write_rgb(out / "overlay" / f"{frame.frame:06d}.png", picture)
+
     with open(out / "fingertips.jsonl", "w") as stream:
         frames = _progress(source, total=source.n_frames, desc="detect", unit="frame")
-        for frame in frames:
-            started = time.perf_counter()
-            record = detector.record(
-                frame.frame, frame.depth_m, frame.intrinsics, pose_guess=args.pose_guess
-            )
-            elapsed += time.perf_counter() - started
-            stream.write(json.dumps(record) + "\n")
-            stream.flush()  # a camera run ends by Ctrl-C: keep every finished frame
-            count += 1
-            picture = overlay(frame.depth_m, record, frame.intrinsics)
-            if args.sheet:
-                tiles.append(picture)
-            else:
-                write_rgb(out / "overlay" / f"{frame.frame:06d}.png", picture)
+        count, seconds = _write_records(
+            detector, frames, stream, pose_guess=args.pose_guess, after=draw
+        )
     if args.sheet:
         write_rgb(out / "contact_sheet.png", contact_sheet(tiles))
     print(
         f"wrote {out / 'fingertips.jsonl'} ({count} frames, "
-        f"{1000 * elapsed / max(count, 1):.1f} ms per frame) and "
+        f"{1000 * seconds / max(count, 1):.1f} ms per frame) and "
         + ("contact_sheet.png" if args.sheet else "overlay/NNNNNN.png")
     )
     return 0
 
 
-def _stream_records(detector: Any, source: Any, *, pose_guess: bool) -> int:
-    """Write one JSON record per frame to standard output as soon as it is ready."""
-    count, elapsed = 0, 0.0
-    for frame in source:
+def _write_records(
+    detector: Any,
+    frames: Iterable[Any],
+    stream: TextIO,
+    *,
+    pose_guess: bool,
+    after: Callable[[Any, dict[str, Any]], None] | None = None,
+) -> tuple[int, float]:
+    """Detect on every frame and write its JSON record to ``stream`` at once (flushed: a
+    camera run ends by Ctrl-C); ``after(frame, record)`` follows each. Returns the number
+    of frames and the seconds spent detecting."""
+    count, seconds = 0, 0.0
+    for frame in frames:
         started = time.perf_counter()
         record = detector.record(
             frame.frame, frame.depth_m, frame.intrinsics, pose_guess=pose_guess
         )
-        elapsed += time.perf_counter() - started
-        sys.stdout.write(json.dumps(record) + "\n")
-        sys.stdout.flush()
+        seconds += time.perf_counter() - started
+        stream.write(json.dumps(record) + "\n")
+        stream.flush()
         count += 1
-    print(f"{count} frames, {1000 * elapsed / max(count, 1):.1f} ms per frame", file=sys.stderr)
-    return 0
+        if after is not None:
+            after(frame, record)
+    return count, seconds
 
 
 def run_eval(args: argparse.Namespace) -> int:
