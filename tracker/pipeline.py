@@ -417,10 +417,17 @@ class Tracker(Closing):
         """Fingertips detected in the frame's depth, named by Eq. 11 against the
         fingertips of the model posed with ``posture`` at ``rotation``, ``translation``."""
         assert self.fingertips is not None
-        tips = forward_kinematics(posture, self.skeleton).keypoints_m[0, list(FINGERTIP_KEYPOINTS)]
-        return self.fingertips.detect(
-            frame.depth_m, frame.intrinsics.pinhole, model_tips_m=tips @ rotation.T + translation
-        )
+        tips = self._posed_keypoints(posture, rotation, translation)[list(FINGERTIP_KEYPOINTS)]
+        return self.fingertips.detect(frame.depth_m, frame.intrinsics.pinhole, model_tips_m=tips)
+
+    def _posed_keypoints(
+        self,
+        posture: NDArray[np.float64],
+        rotation: NDArray[np.float64],
+        translation: NDArray[np.float64],
+    ) -> NDArray[np.float64]:
+        """``(21, 3)`` keypoints of the hand model in ``posture`` at the pose, camera frame."""
+        return forward_kinematics(posture, self.skeleton).keypoints_m[0] @ rotation.T + translation
 
     def _initial_translation(
         self,
@@ -444,9 +451,7 @@ class Tracker(Closing):
         translation: NDArray[np.float64],
         confidence: float,
     ) -> dict[str, Any]:
-        keypoints = (
-            forward_kinematics(posture, self.skeleton).keypoints_m[0] @ rotation.T + translation
-        )
+        keypoints = self._posed_keypoints(posture, rotation, translation)
         pixels = frame.intrinsics.project(keypoints)
         fingertips = tuple(
             {
