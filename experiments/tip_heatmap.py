@@ -1,0 +1,592 @@
+"""Prototype: a whole-hand fingertip heatmap network next to the Hough forest (issue 7).
+
+Not part of the package, and imported neither by it nor by the tests. It needs PyTorch
+on top of the project (``pip install torch``; the CPU wheel is enough). The ninth
+session's figures in ``docs/fingertips_experiments.md`` were made with this
+code. Run from the repository root, with the project's environment:
+
+    # 35,000 hand crops rendered like configs/fingertips/curled.toml (curl_fraction 0.3)
+    for s in 101 102 103 104 105; do
+      python experiments/tip_heatmap.py crops --seed $s --frames 7000 --out d$s.npz
+    done
+    # 18 epochs on the crops that hold the whole hand, then 5 more on all of them
+    python experiments/tip_heatmap.py train d10?.npz --out hm1.pt --epochs 18 --whole-hands
+    python experiments/tip_heatmap.py train d10?.npz --out hm4.pt --epochs 5 --init hm1.pt \
+        --lr 1e-3
+    # the network alone on annotated folders
+    python experiments/tip_heatmap.py eval hm4.pt /tmp/fingertips_validation
+    # peaks with verifier features (training frames, validation, held-out, real), then
+    # a verifier, the union with the shipped forest's detections and the validation rule
+    python experiments/tip_heatmap.py peaks hm4.pt --frames 1500 --seed 11 --surface 0.04 \
+        --validation /tmp/fingertips_validation_surface \
+        --heldout /tmp/fingertips_heldout_surface --out v4s.npz
+    python experiments/tip_heatmap.py peaks hm4.pt --frames 3500 --seed 12 --surface 0.04 \
+        --validation /tmp/fingertips_validation_surface \
+        --heldout /tmp/fingertips_heldout_surface --out v4s_b.npz
+    python experiments/tip_heatmap.py union v4s.npz v4s_b.npz
+
+What it does (details and figures in the experiment log):
+
+- **crop**: the mean of the nearest object's points (``hand_points_from_depth``),
+  moved three times to the mean of the points within 12 cm, is the centre of a 30 cm
+  cube; the crop is a 64 x 64 image of the depth relative to that centre over 15 cm,
+  clipped to [-1, 1] (1 where depth is missing).
+- **network**: a small U-Net (stride-2 stem, encoder to 4 x 4, decoder with skips back
+  to 32 x 32) whose one output channel is the logit that a visible fingertip lies in
+  each 9.4 mm cell. Targets are Gaussians (sigma 1.2 cells) at the visible tips of the
+  rendered frames (the data config's visibility rule); loss: binary cross-entropy with
+  positive weight 20; augmentation: in-plane rotations and left-right flips.
+- **peaks**: local 3 x 3 maxima of the mean of 8 flipped and rotated passes, moved by
+  the centroid of their 3 x 3 neighbourhood (sub-cell), lifted to 3D at the 10th
+  percentile of the depth within 6 mm (and within 15 cm of the crop centre) plus 8 mm.
+- **verifier and union**: 22 features per peak (heatmap value and its spread over the
+  8 passes, neighbourhood, depth context, the shipped forest's nearest candidate peak
+  and its verifier probability), a gradient-boosting classifier trained on peaks of
+  rendered frames; accepted peaks farther than 15 mm from every detection of the
+  shipped forest are added to those detections.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import tomllib
+import torch
+from scipy.ndimage import maximum_filter
+from sklearn.ensemble import HistGradientBoostingClassifier
+from torch import nn
+from tqdm import tqdm
+
+from builder.fingertip_data import data_config_from_dict, generate_examples
+from tracker.fingertips import detect_fingertips, load_forest, model_detector_config
+from tracker.fingertips.detect import candidate_peaks
+from tracker.fingertips.evaluation import match_within, read_annotated_depth
+from tracker.fingertips.pose_guess import hand_points_from_depth
+from tracker.fingertips.verify import verify_peaks
+
+CROP = 64
+"""Crop side, pixels."""
+HALF_M = 0.15
+"""Half the side of the cube around the hand centre, metres."""
+GRID = 32
+"""Heatmap side, cells."""
+SIGMA_CELLS = 1.2
+TIP_KEYPOINTS = [4, 8, 12, 16, 20]
+REAL = "../shared/data/real_depth/hmodel_andrii"
+
+
+# --- crop geometry -----------------------------------------------------------------
+
+
+def hand_centre(depth_m: np.ndarray, intrinsics: np.ndarray) -> np.ndarray | None:
+    """Centre (3,) of the nearest object's densest 12 cm, metres; None without one."""
+    points = hand_points_from_depth(depth_m, intrinsics, max_points=1500)
+    if len(points) < 20:
+        return None
+    centre = points.mean(0)
+    for _ in range(3):
+        near = points[np.linalg.norm(points - centre, axis=1) < 0.12]
+        if len(near) < 20:
+            break
+        centre = near.mean(0)
+    return centre
+
+
+def crop(depth_m: np.ndarray, intrinsics: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """(CROP, CROP) float16 depth relative to ``centre`` over HALF_M, clipped to [-1, 1]."""
+    fx, fy, cx, cy = (float(a) for a in intrinsics)
+    h, w = depth_m.shape
+    offset = ((np.arange(CROP) + 0.5) / CROP - 0.5) * 2 * HALF_M
+    u = np.clip(np.rint(fx * centre[0] / centre[2] + cx + fx * offset / centre[2]), 0, w - 1)
+    v = np.clip(np.rint(fy * centre[1] / centre[2] + cy + fy * offset / centre[2]), 0, h - 1)
+    d = depth_m[v.astype(int)[:, None], u.astype(int)[None, :]]
+    relative = np.where(d > 0, (d - centre[2]) / HALF_M, 1.0)
+    return np.clip(relative, -1.0, 1.0).astype(np.float16)
+
+
+def crop_units(points_m: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """(..., 2) positions of 3D points in the crop's [-1, 1] frame (through its pinhole)."""
+    rays = points_m[..., :2] / points_m[..., 2:3] - centre[..., None, :2] / centre[..., None, 2:3]
+    return rays * centre[..., None, 2:3] / HALF_M
+
+
+# --- network -----------------------------------------------------------------------
+
+
+def _block(n_in: int, n_out: int) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(n_in, n_out, 3, padding=1),
+        nn.BatchNorm2d(n_out),
+        nn.ReLU(),
+        nn.Conv2d(n_out, n_out, 3, padding=1),
+        nn.BatchNorm2d(n_out),
+        nn.ReLU(),
+    )
+
+
+class HeatNet(nn.Module):
+    """(N, 1, 64, 64) hand crops -> (N, 32, 32) logits of "a visible fingertip is here"."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.stem = nn.Sequential(
+            nn.Conv2d(1, 16, 5, stride=2, padding=2), nn.BatchNorm2d(16), nn.ReLU()
+        )
+        self.e1, self.e2 = _block(16, 32), _block(32, 64)
+        self.e3, self.e4 = _block(64, 128), _block(128, 128)
+        self.d3, self.d2, self.d1 = _block(256, 96), _block(96 + 64, 64), _block(64 + 32, 32)
+        self.out = nn.Conv2d(32, 1, 1)
+        self.pool = nn.MaxPool2d(2)
+        self.up = nn.Upsample(scale_factor=2, mode="nearest")
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = self.stem(x)
+        a = self.e1(x)
+        b = self.e2(self.pool(a))
+        c = self.e3(self.pool(b))
+        d = self.e4(self.pool(c))
+        y = self.d3(torch.cat([self.up(d), c], 1))
+        y = self.d2(torch.cat([self.up(y), b], 1))
+        y = self.d1(torch.cat([self.up(y), a], 1))
+        return self.out(y)[:, 0]
+
+
+def load_net(path: str) -> HeatNet:
+    net = HeatNet()
+    net.load_state_dict(torch.load(path, weights_only=True))
+    return net.eval()
+
+
+def heat_targets(tips: torch.Tensor) -> torch.Tensor:
+    """(N, 5, 2) tips in crop units (NaN: not visible) -> (N, GRID, GRID) max of Gaussians."""
+    u = (tips[..., 0] + 1) / 2 * GRID - 0.5
+    v = (tips[..., 1] + 1) / 2 * GRID - 0.5
+    cells = torch.arange(GRID).float()
+    d2 = (cells[None, None, None, :] - u[..., None, None]) ** 2
+    d2 = d2 + (cells[None, None, :, None] - v[..., None, None]) ** 2
+    return torch.nan_to_num(torch.exp(-d2 / (2 * SIGMA_CELLS**2)), nan=0.0).max(1).values
+
+
+def augment(x: torch.Tensor, tips: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Random in-plane rotation and left-right flip of crops (N, 1, 64, 64) and tips."""
+    n = len(x)
+    angle = torch.rand(n) * 2 * np.pi - np.pi
+    c, s = torch.cos(angle), torch.sin(angle)
+    theta = torch.zeros(n, 2, 3)
+    theta[:, 0, 0], theta[:, 0, 1], theta[:, 1, 0], theta[:, 1, 1] = c, -s, s, c
+    grid = nn.functional.affine_grid(theta, list(x.shape), align_corners=False)
+    x = nn.functional.grid_sample(x - 1, grid, mode="nearest", align_corners=False) + 1
+    px = c[:, None] * tips[..., 0] + s[:, None] * tips[..., 1]
+    py = -s[:, None] * tips[..., 0] + c[:, None] * tips[..., 1]
+    tips = torch.stack([px, py], -1)
+    flip = torch.rand(n) < 0.5
+    x[flip] = x[flip].flip(-1)
+    tips[flip, :, 0] = -tips[flip, :, 0]
+    return x, tips
+
+
+def tta_heat(net: HeatNet, crop_image: np.ndarray) -> np.ndarray:
+    """(8, GRID, GRID) probabilities of the 4 rotations of the crop and of its mirror."""
+    x = torch.from_numpy(crop_image.astype(np.float32))[None, None]
+    views = [torch.rot90(v, k, (-2, -1)) for v in (x, x.flip(-1)) for k in range(4)]
+    with torch.no_grad():
+        maps = torch.sigmoid(net(torch.cat(views)))
+    back = [torch.rot90(maps[i], -(i % 4), (-2, -1)) for i in range(8)]
+    back = [m if i < 4 else m.flip(-1) for i, m in enumerate(back)]
+    return torch.stack(back).numpy()
+
+
+# --- peaks -------------------------------------------------------------------------
+
+
+def heat_peaks(
+    heat: np.ndarray,
+    centre: np.ndarray,
+    depth_m: np.ndarray,
+    intrinsics: np.ndarray,
+    threshold: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Local maxima above ``threshold``: cells (K, 2), pixels (K, 2), 3D (K, 3), values (K,)."""
+    cells = np.argwhere((heat == maximum_filter(heat, 3)) & (heat > threshold))[:, ::-1]
+    values = heat[cells[:, 1], cells[:, 0]]
+    padded = np.pad(heat, 1)
+    gy, gx = np.mgrid[-1:2, -1:2]
+    refined = cells.astype(float)
+    for n, (a, b) in enumerate(cells):
+        w = padded[b : b + 3, a : a + 3]
+        w = np.maximum(w - w.min(), 0)
+        refined[n] += [(w * gx).sum() / w.sum(), (w * gy).sum() / w.sum()]
+    fx, fy, cx, cy = intrinsics
+    offset = ((refined + 0.5) / GRID * 2 - 1) * HALF_M
+    u = fx * (centre[0] + offset[:, 0]) / centre[2] + cx
+    v = fy * (centre[1] + offset[:, 1]) / centre[2] + cy
+    h, w = depth_m.shape
+    radius = max(2, round(0.006 * fx / centre[2]))
+    xyz = []
+    for a, b in zip(u, v, strict=True):
+        i, j = int(np.clip(round(b), 0, h - 1)), int(np.clip(round(a), 0, w - 1))
+        window = depth_m[max(i - radius, 0) : i + radius + 1, max(j - radius, 0) : j + radius + 1]
+        window = window[(window > 0) & (np.abs(window - centre[2]) < HALF_M)]
+        z = np.percentile(window, 10) + 0.008 if len(window) else centre[2]
+        xyz.append([(a - cx) * z / fx, (b - cy) * z / fy, z])
+    return cells, np.stack([u, v], 1), np.array(xyz).reshape(-1, 3), values
+
+
+FEATURES = (
+    "value",
+    "tta_std",
+    "mean_3x3",
+    "mean_5x5",
+    "n_peaks",
+    "rank",
+    "cells_from_centre",
+    "depth_from_centre_m",
+    "centre_depth_m",
+    "window_valid",
+    "window_spread_m",
+    "front_minus_median_m",
+    "depth_m",
+    "n_candidates",
+    "n_forest_detections",
+    "candidate_distance_m",
+    "candidate_confidence",
+    "candidate_probability",
+    "best_probability_2cm",
+    "confidence_2cm",
+    "tta_min",
+    "tta_share_above_half",
+)
+
+
+def peak_rows(
+    net: HeatNet, forest, depth_m: np.ndarray, intrinsics: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Features (K, len(FEATURES)), pixels (K, 2) and 3D (K, 3) of a frame's heatmap peaks."""
+    empty = np.zeros((0, len(FEATURES))), np.zeros((0, 2)), np.zeros((0, 3))
+    centre = hand_centre(depth_m, intrinsics)
+    if centre is None:
+        return empty
+    maps = tta_heat(net, crop(depth_m, intrinsics, centre))
+    heat, spread = maps.mean(0), maps.std(0)
+    cells, uv, xyz, values = heat_peaks(heat, centre, depth_m, intrinsics, 0.3)
+    if not len(uv):
+        return empty
+    base = model_detector_config(forest)
+    config = replace(base, c_thr=0.5, voting=replace(base.voting, min_probability=0.3))
+    candidates, features = candidate_peaks(depth_m, intrinsics, forest, config=config)
+    probability = verify_peaks(forest.verifier, features) if len(features) else np.zeros(0)
+    positions = candidates.positions_m.astype(float)
+    rank = np.empty(len(values))
+    rank[np.argsort(-values)] = np.arange(len(values))
+    h, w = depth_m.shape
+    radius = max(2, round(0.006 * intrinsics[0] / centre[2]))
+    rows = []
+    for k, (a, b) in enumerate(cells):
+        i, j = int(np.clip(round(uv[k, 1]), 0, h - 1)), int(np.clip(round(uv[k, 0]), 0, w - 1))
+        window = depth_m[max(i - radius, 0) : i + radius + 1, max(j - radius, 0) : j + radius + 1]
+        valid = (window > 0) & (np.abs(window - centre[2]) < HALF_M)
+        seen = window[valid]
+        front = np.percentile(seen, 25) if len(seen) else centre[2]
+        extent = np.percentile(seen, 90) - np.percentile(seen, 10) if len(seen) else 0.0
+        if len(positions):
+            distance = np.linalg.norm(positions - xyz[k], axis=1)
+            n = distance.argmin()
+            near = distance < 0.02
+            best = probability[near].max() if near.any() else 0.0
+            forest_part = [
+                distance[n],
+                candidates.confidences[n],
+                probability[n],
+                best,
+                candidates.confidences[near].sum(),
+            ]
+        else:
+            forest_part = [1.0, 0.0, 0.0, 0.0, 0.0]
+        rows.append(
+            [
+                values[k],
+                spread[b, a],
+                heat[max(b - 1, 0) : b + 2, max(a - 1, 0) : a + 2].mean(),
+                heat[max(b - 2, 0) : b + 3, max(a - 2, 0) : a + 3].mean(),
+                (values > 0.5).sum(),
+                rank[k],
+                np.hypot(a - 15.5, b - 15.5),
+                xyz[k, 2] - centre[2],
+                centre[2],
+                valid.mean(),
+                extent,
+                front - np.median(seen) if len(seen) else 0.0,
+                xyz[k, 2],
+                len(positions),
+                (probability >= 0.75).sum(),
+            ]
+            + forest_part
+            + [maps[:, b, a].min(), (maps[:, b, a] > 0.5).mean()]
+        )
+    return np.array(rows), uv, xyz
+
+
+# --- commands ----------------------------------------------------------------------
+
+
+def curled_data(seed: int, frames: int, surface_m: float, half_resolution: float):
+    table = tomllib.loads(Path("configs/fingertips/curled.toml").read_text())["data"]
+    return replace(
+        data_config_from_dict(table),
+        seed=seed,
+        n_images=frames,
+        curl_fraction=0.3,
+        surface_tip_depth_m=surface_m,
+        half_resolution_fraction=half_resolution,
+    )
+
+
+def cmd_crops(args: argparse.Namespace) -> None:
+    data = curled_data(args.seed, args.frames, 0.04, 0.5)
+    crops, keypoints, centres, tips = [], [], [], []
+    for example in tqdm(generate_examples(data), total=args.frames, mininterval=30):
+        centre = hand_centre(example.depth_m, example.intrinsics)
+        if centre is None:
+            continue
+        crops.append(crop(example.depth_m, example.intrinsics, centre))
+        keypoints.append(example.keypoints_m - centre)
+        centres.append(centre)
+        tips.append(example.tips_m)
+    np.savez(
+        args.out,
+        X=np.array(crops),
+        K=np.array(keypoints, np.float32),
+        C=np.array(centres),
+        T=np.array(tips),
+    )
+    print(f"{len(crops)} crops")
+
+
+def cmd_train(args: argparse.Namespace) -> None:
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    crops, tips = [], []
+    for path in args.crops:
+        z = np.load(path)
+        keep = np.ones(len(z["X"]), bool)
+        if args.whole_hands:  # every keypoint inside the crop's cube
+            k = z["K"]
+            keep = (np.abs(k[..., :2]) < 0.14).all((1, 2)) & (np.abs(k[..., 2]) < HALF_M).all(1)
+        crops.append(z["X"][keep])
+        tips.append(crop_units(z["T"][keep], z["C"][keep]))
+    x = torch.from_numpy(np.concatenate(crops).astype(np.float32))[:, None]
+    p = torch.from_numpy(np.concatenate(tips).astype(np.float32))
+    order = rng.permutation(len(x))
+    check, train = order[: min(500, len(x) // 5)], order[min(500, len(x) // 5) :]
+    net = HeatNet()
+    if args.init:
+        net.load_state_dict(torch.load(args.init, weights_only=True))
+    optimiser = torch.optim.AdamW(net.parameters(), 1e-3, weight_decay=1e-4)
+    schedule = torch.optim.lr_scheduler.OneCycleLR(
+        optimiser, args.lr, total_steps=args.epochs * (len(train) // 64 + 1)
+    )
+    for epoch in range(args.epochs):
+        net.train()
+        start, total = time.time(), 0.0
+        shuffled = torch.from_numpy(rng.permutation(train))
+        for b in range(0, len(train), 64):
+            batch = shuffled[b : b + 64]
+            xb, pb = augment(x[batch].clone(), p[batch].clone())
+            loss = nn.functional.binary_cross_entropy_with_logits(
+                net(xb), heat_targets(pb), pos_weight=torch.tensor(20.0)
+            )
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            schedule.step()
+            total += loss.item() * len(batch)
+        net.eval()
+        with torch.no_grad():
+            prob, target = torch.sigmoid(net(x[check])), heat_targets(p[check])
+        found = (prob[target > 0.6] > 0.5).float().mean()
+        false = (prob[target < 0.05] > 0.5).float().mean()
+        print(
+            f"epoch {epoch} loss {total / len(train):.4f} tip cells found {found:.3f} "
+            f"background cells above 0.5 {false:.4f} ({time.time() - start:.0f} s)",
+            flush=True,
+        )
+    torch.save(net.state_dict(), args.out)
+
+
+def cmd_eval(args: argparse.Namespace) -> None:
+    net = load_net(args.net)
+    for folder in args.folders:
+        data = read_annotated_depth(folder)
+        camera = np.asarray(data.intrinsics, float)
+        total = np.isfinite(data.tips_px).all(2).sum()
+        maps = []
+        for depth in data.depth_m:
+            centre = hand_centre(depth, camera)
+            maps.append(
+                None if centre is None else (tta_heat(net, crop(depth, camera, centre))[0], centre)
+            )
+        for threshold in (0.5, 0.9, 0.97):
+            hit_px = hit_m = n = 0
+            for k, item in enumerate(maps):
+                if item is None:
+                    continue
+                _, uv, xyz, _ = heat_peaks(item[0], item[1], data.depth_m[k], camera, threshold)
+                n += len(uv)
+                seen = np.isfinite(data.tips_px[k]).all(1)
+                if len(uv) and seen.any():
+                    px = np.linalg.norm(uv[:, None] - data.tips_px[k][seen][None], axis=2)
+                    m = np.linalg.norm(xyz[:, None] - data.tips_m[k][seen][None], axis=2)
+                    hit_px += len(match_within(px, 10.0)[0])
+                    hit_m += len(match_within(m, 0.015)[0])
+            print(
+                f"{folder} threshold {threshold}: {n} peaks, 3D precision {hit_m / max(n, 1):.3f} "
+                f"recall {hit_m / total:.3f}; 2D precision {hit_px / max(n, 1):.3f} "
+                f"recall at 10 px {hit_px / total:.3f}"
+            )
+
+
+def _labels(uv, xyz, data, k, real: bool) -> np.ndarray:
+    seen = np.isfinite(data.tips_px[k]).all(1)
+    if not len(uv) or not seen.any():
+        return np.zeros(len(uv), bool)
+    if real:
+        return np.linalg.norm(uv[:, None] - data.tips_px[k][seen][None], axis=2).min(1) <= 10
+    return np.linalg.norm(xyz[:, None] - data.tips_m[k][seen][None], axis=2).min(1) <= 0.015
+
+
+def cmd_peaks(args: argparse.Namespace) -> None:
+    net, forest = load_net(args.net), load_forest()
+    out: dict[str, np.ndarray] = {}
+    rows, labels, frames = [], [], []
+    data = curled_data(args.seed, args.frames, args.surface, 0.0)
+    for k, example in enumerate(tqdm(generate_examples(data), total=args.frames, mininterval=30)):
+        camera = np.asarray(example.intrinsics, float)
+        f, _, xyz = peak_rows(net, forest, example.depth_m, camera)
+        seen = np.isfinite(example.tips_m).all(1)
+        hit = np.zeros(len(xyz), bool)
+        if len(xyz) and seen.any():
+            hit = np.linalg.norm(xyz[:, None] - example.tips_m[seen][None], axis=2).min(1) <= 0.015
+        rows.append(f), labels.append(hit), frames.append(np.full(len(f), k))
+    out.update(Ftrain=np.concatenate(rows), ytrain=np.concatenate(labels))
+    for name, folder in (("val", args.validation), ("held", args.heldout), ("real", REAL)):
+        data = read_annotated_depth(folder)
+        camera = np.asarray(data.intrinsics, float)
+        parts: dict[str, list] = {"F": [], "y": [], "frame": [], "uv": [], "xyz": []}
+        for k, depth in enumerate(data.depth_m):
+            f, uv, xyz = peak_rows(net, forest, depth, camera)
+            labels = _labels(uv, xyz, data, k, name == "real")
+            for key, value in zip(parts, (f, labels, np.full(len(f), k), uv, xyz), strict=True):
+                parts[key].append(value)
+        out.update({f"{key}{name}": np.concatenate(v) for key, v in parts.items()})
+        out[f"folder{name}"] = np.array(folder)
+    np.savez(args.out, **out)
+
+
+def cmd_union(args: argparse.Namespace) -> None:
+    z = dict(np.load(args.caches[0]))
+    for path in args.caches[1:]:  # more training frames for the verifier
+        extra = np.load(path)
+        z["Ftrain"] = np.concatenate([z["Ftrain"], extra["Ftrain"]])
+        z["ytrain"] = np.concatenate([z["ytrain"], extra["ytrain"]])
+    forest = load_forest()
+    config = model_detector_config(forest)
+    classifier = HistGradientBoostingClassifier(
+        max_iter=300, learning_rate=0.05, max_leaf_nodes=31, random_state=0
+    ).fit(z["Ftrain"], z["ytrain"])
+    sets = {}
+    for name in ("val", "held", "real"):
+        data = read_annotated_depth(str(z[f"folder{name}"]))
+        camera = np.asarray(data.intrinsics, float)
+        forest_detections = []
+        for depth in data.depth_m:
+            found = detect_fingertips(depth, camera, forest, config=config)
+            forest_detections.append(
+                (
+                    np.array([(d.u_px, d.v_px) for d in found]).reshape(-1, 2),
+                    np.array([(d.x_m, d.y_m, d.z_m) for d in found]).reshape(-1, 3),
+                )
+            )
+        sets[name] = (data, forest_detections, classifier.predict_proba(z[f"F{name}"])[:, 1])
+
+    def score(name: str, threshold: float) -> tuple[float, float, float, float]:
+        """3D precision and recall (15 mm), recall at 10 px, mean px error of those."""
+        data, forest_detections, probability = sets[name]
+        hit_px = hit_m = n = 0
+        errors_px: list[float] = []
+        for k, (forest_uv, forest_xyz) in enumerate(forest_detections):
+            keep = (z[f"frame{name}"] == k) & (probability >= threshold)
+            uv, xyz = z[f"uv{name}"][keep], z[f"xyz{name}"][keep]
+            if len(forest_xyz) and len(xyz):
+                apart = np.linalg.norm(xyz[:, None] - forest_xyz[None], axis=2).min(1) > 0.015
+                uv, xyz = uv[apart], xyz[apart]
+            uv, xyz = np.concatenate([forest_uv, uv]), np.concatenate([forest_xyz, xyz])
+            n += len(uv)
+            seen = np.isfinite(data.tips_px[k]).all(1)
+            if len(uv) and seen.any():
+                px = np.linalg.norm(uv[:, None] - data.tips_px[k][seen][None], axis=2)
+                m = np.linalg.norm(xyz[:, None] - data.tips_m[k][seen][None], axis=2)
+                rows, cols = match_within(px, 10.0)
+                hit_px += len(rows)
+                errors_px.extend(px[rows, cols])
+                hit_m += len(match_within(m, 0.015)[0])
+        total = np.isfinite(data.tips_px).all(2).sum()
+        return hit_m / max(n, 1), hit_m / total, hit_px / total, float(np.mean(errors_px))
+
+    def line(threshold: float) -> str:
+        return " | ".join(
+            f"{name} P {p:.3f} R {r:.3f} R@10px {r10:.3f} ({px:.1f} px)"
+            for name in sets
+            for p, r, r10, px in [score(name, threshold)]
+        )
+
+    for threshold in np.arange(0.5, 1.0, 0.05):
+        print(f"threshold {threshold:.2f}: {line(threshold)}")
+    passing = [t for t in np.arange(0.3, 1.0, 0.01) if score("val", t)[0] >= 0.95]
+    if passing:
+        print(f"validation rule {passing[0]:.2f}: {line(passing[0])}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("crops", help="render frames and crop the hand")
+    p.add_argument("--seed", type=int, required=True)
+    p.add_argument("--frames", type=int, default=7000)
+    p.add_argument("--out", required=True)
+    p = sub.add_parser("train", help="train the heatmap network on crop files")
+    p.add_argument("crops", nargs="+")
+    p.add_argument("--out", required=True)
+    p.add_argument("--epochs", type=int, default=18)
+    p.add_argument("--lr", type=float, default=2e-3, help="peak of the one-cycle schedule")
+    p.add_argument("--init", help="start from these weights")
+    p.add_argument("--whole-hands", action="store_true", help="only crops holding every keypoint")
+    p = sub.add_parser("eval", help="the network alone on annotated folders")
+    p.add_argument("net")
+    p.add_argument("folders", nargs="+")
+    p = sub.add_parser("peaks", help="heatmap peaks with verifier features and labels")
+    p.add_argument("net")
+    p.add_argument("--frames", type=int, default=1500)
+    p.add_argument("--seed", type=int, default=11)
+    p.add_argument("--surface", type=float, default=0.0, help="surface_tip_depth_m of the labels")
+    p.add_argument("--validation", default="/tmp/fingertips_validation")
+    p.add_argument("--heldout", default="/tmp/fingertips_heldout")
+    p.add_argument("--out", required=True)
+    p = sub.add_parser("union", help="verifier, union with the forest, validation rule")
+    p.add_argument("caches", nargs="+", help="peaks files; the training rows of all are used")
+    args = parser.parse_args()
+    torch.set_num_threads(2)
+    {
+        "crops": cmd_crops,
+        "train": cmd_train,
+        "eval": cmd_eval,
+        "peaks": cmd_peaks,
+        "union": cmd_union,
+    }[args.command](args)
+
+
+if __name__ == "__main__":
+    main()
