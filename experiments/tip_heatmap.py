@@ -15,6 +15,16 @@ code. Run from the repository root, with the project's environment:
         --lr 1e-3
     # the network alone on annotated folders
     python experiments/tip_heatmap.py eval hm4.pt /tmp/fingertips_validation
+    # test frames whose curled tips follow the real annotations' rule ("surface"), and
+    # 600 validation frames of their own seed
+    tip='s/^occlusion_tolerance_m = 0.015/&\nsurface_tip_depth_m = 0.04/'
+    more='s/^n_images = 200/n_images = 600/; s/^seed = 2/seed = 3/'
+    sed "$tip" configs/fingertips/heldout.toml > heldout_surface.toml
+    sed "$tip" configs/fingertips/validation.toml > validation_surface.toml
+    sed "$tip; $more" configs/fingertips/validation.toml > validation600_surface.toml
+    for c in heldout_surface validation_surface validation600_surface; do
+      glove fingertips synth $c.toml --out /tmp/fingertips_$c
+    done
     # peaks with verifier features (training frames, validation, held-out, real), then
     # a verifier, the union with the shipped forest's detections and the validation rule
     python experiments/tip_heatmap.py peaks hm4.pt --frames 1500 --seed 11 --surface 0.04 \
@@ -24,6 +34,13 @@ code. Run from the repository root, with the project's environment:
         --validation /tmp/fingertips_validation_surface \
         --heldout /tmp/fingertips_heldout_surface --out v4s_b.npz
     python experiments/tip_heatmap.py union v4s.npz v4s_b.npz
+    python experiments/tip_heatmap.py peaks hm4.pt --frames 0 \
+        --validation /tmp/fingertips_validation600_surface \
+        --heldout /tmp/fingertips_heldout_surface --out v600s.npz
+    python experiments/tip_heatmap.py union v600s.npz v4s.npz v4s_b.npz
+
+The same without ``--surface`` and with the shipped folders (and 600 validation frames
+without ``$tip``) gives the figures for the held-out frames' own rule.
 
 What it does (details and figures in the experiment log):
 
@@ -461,17 +478,21 @@ def _labels(uv, xyz, data, k, real: bool) -> np.ndarray:
 def cmd_peaks(args: argparse.Namespace) -> None:
     net, forest = load_net(args.net), load_forest()
     out: dict[str, np.ndarray] = {}
-    rows, labels, frames = [], [], []
-    data = curled_data(args.seed, args.frames, args.surface, 0.0)
-    for k, example in enumerate(tqdm(generate_examples(data), total=args.frames, mininterval=30)):
+    rows, labels = [], []
+    examples = generate_examples(curled_data(args.seed, max(args.frames, 1), args.surface, 0.0))
+    for example in tqdm(examples if args.frames else (), total=args.frames, mininterval=30):
         camera = np.asarray(example.intrinsics, float)
         f, _, xyz = peak_rows(net, forest, example.depth_m, camera)
         seen = np.isfinite(example.tips_m).all(1)
         hit = np.zeros(len(xyz), bool)
         if len(xyz) and seen.any():
             hit = np.linalg.norm(xyz[:, None] - example.tips_m[seen][None], axis=2).min(1) <= 0.015
-        rows.append(f), labels.append(hit), frames.append(np.full(len(f), k))
-    out.update(Ftrain=np.concatenate(rows), ytrain=np.concatenate(labels))
+        rows.append(f)
+        labels.append(hit)
+    out.update(
+        Ftrain=np.concatenate(rows) if rows else np.zeros((0, len(FEATURES))),
+        ytrain=np.concatenate(labels) if labels else np.zeros(0, bool),
+    )
     for name, folder in (("val", args.validation), ("held", args.heldout), ("real", REAL)):
         data = read_annotated_depth(folder)
         camera = np.asarray(data.intrinsics, float)
@@ -512,11 +533,12 @@ def cmd_union(args: argparse.Namespace) -> None:
             )
         sets[name] = (data, forest_detections, classifier.predict_proba(z[f"F{name}"])[:, 1])
 
-    def score(name: str, threshold: float) -> tuple[float, float, float, float]:
-        """3D precision and recall (15 mm), recall at 10 px, mean px error of those."""
+    def score(name: str, threshold: float) -> tuple[float, float, float, float, float]:
+        """3D precision, recall (15 mm) and error (m); recall at 10 px and error (px)."""
         data, forest_detections, probability = sets[name]
         hit_px = hit_m = n = 0
         errors_px: list[float] = []
+        errors_m: list[float] = []
         for k, (forest_uv, forest_xyz) in enumerate(forest_detections):
             keep = (z[f"frame{name}"] == k) & (probability >= threshold)
             uv, xyz = z[f"uv{name}"][keep], z[f"xyz{name}"][keep]
@@ -532,15 +554,23 @@ def cmd_union(args: argparse.Namespace) -> None:
                 rows, cols = match_within(px, 10.0)
                 hit_px += len(rows)
                 errors_px.extend(px[rows, cols])
-                hit_m += len(match_within(m, 0.015)[0])
+                rows, cols = match_within(m, 0.015)
+                hit_m += len(rows)
+                errors_m.extend(m[rows, cols])
         total = np.isfinite(data.tips_px).all(2).sum()
-        return hit_m / max(n, 1), hit_m / total, hit_px / total, float(np.mean(errors_px))
+        return (
+            hit_m / max(n, 1),
+            hit_m / total,
+            float(np.mean(errors_m)),
+            hit_px / total,
+            float(np.mean(errors_px)),
+        )
 
     def line(threshold: float) -> str:
         return " | ".join(
-            f"{name} P {p:.3f} R {r:.3f} R@10px {r10:.3f} ({px:.1f} px)"
+            f"{name} P {p:.3f} R {r:.3f} ({1000 * mm:.1f} mm) R@10px {r10:.3f} ({px:.1f} px)"
             for name in sets
-            for p, r, r10, px in [score(name, threshold)]
+            for p, r, mm, r10, px in [score(name, threshold)]
         )
 
     for threshold in np.arange(0.5, 1.0, 0.05):
@@ -569,7 +599,7 @@ def main() -> None:
     p.add_argument("folders", nargs="+")
     p = sub.add_parser("peaks", help="heatmap peaks with verifier features and labels")
     p.add_argument("net")
-    p.add_argument("--frames", type=int, default=1500)
+    p.add_argument("--frames", type=int, default=1500, help="training frames (0: none)")
     p.add_argument("--seed", type=int, default=11)
     p.add_argument("--surface", type=float, default=0.0, help="surface_tip_depth_m of the labels")
     p.add_argument("--validation", default="/tmp/fingertips_validation")
