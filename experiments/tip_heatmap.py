@@ -92,7 +92,6 @@ HALF_M = 0.15
 GRID = 32
 """Heatmap side, cells."""
 SIGMA_CELLS = 1.2
-TIP_KEYPOINTS = [4, 8, 12, 16, 20]
 REAL = "../shared/data/real_depth/hmodel_andrii"
 
 
@@ -236,7 +235,8 @@ def heat_peaks(
     for n, (a, b) in enumerate(cells):
         w = padded[b : b + 3, a : a + 3]
         w = np.maximum(w - w.min(), 0)
-        refined[n] += [(w * gx).sum() / w.sum(), (w * gy).sum() / w.sum()]
+        if w.sum() > 0:  # a flat neighbourhood keeps the cell centre
+            refined[n] += [(w * gx).sum() / w.sum(), (w * gy).sum() / w.sum()]
     fx, fy, cx, cy = intrinsics
     offset = ((refined + 0.5) / GRID * 2 - 1) * HALF_M
     u = fx * (centre[0] + offset[:, 0]) / centre[2] + cx
@@ -443,6 +443,7 @@ def cmd_eval(args: argparse.Namespace) -> None:
         maps = []
         for depth in data.depth_m:
             centre = hand_centre(depth, camera)
+            # the plain pass of the 8: the network's own peaks, without averaging
             maps.append(
                 None if centre is None else (tta_heat(net, crop(depth, camera, centre))[0], centre)
             )
@@ -594,7 +595,7 @@ def main() -> None:
     p.add_argument("--lr", type=float, default=2e-3, help="peak of the one-cycle schedule")
     p.add_argument("--init", help="start from these weights")
     p.add_argument("--whole-hands", action="store_true", help="only crops holding every keypoint")
-    p = sub.add_parser("eval", help="the network alone on annotated folders")
+    p = sub.add_parser("eval", help="the network alone (one pass) on annotated folders")
     p.add_argument("net")
     p.add_argument("folders", nargs="+")
     p = sub.add_parser("peaks", help="heatmap peaks with verifier features and labels")
