@@ -205,14 +205,20 @@ def augment(x: torch.Tensor, tips: torch.Tensor) -> tuple[torch.Tensor, torch.Te
     return x, tips
 
 
-def tta_heat(net: HeatNet, crop_image: np.ndarray) -> np.ndarray:
-    """(8, GRID, GRID) probabilities of the 4 rotations of the crop and of its mirror."""
+def tta_heat(net: HeatNet, crop_image: np.ndarray, passes: int = 8) -> np.ndarray:
+    """(passes, GRID, GRID) probabilities of turned and mirrored crops, turned back.
+
+    ``passes`` 8: the 4 quarter turns of the crop and of its mirror image; 2: the crop
+    and its mirror image; 1: the crop alone.
+    """
     x = torch.from_numpy(crop_image.astype(np.float32))[None, None]
-    views = [torch.rot90(v, k, (-2, -1)) for v in (x, x.flip(-1)) for k in range(4)]
+    mirrors = (x,) if passes == 1 else (x, x.flip(-1))
+    turns = max(passes // 2, 1)
+    views = [torch.rot90(v, k, (-2, -1)) for v in mirrors for k in range(turns)]
     with torch.no_grad():
         maps = torch.sigmoid(net(torch.cat(views)))
-    back = [torch.rot90(maps[i], -(i % 4), (-2, -1)) for i in range(8)]
-    back = [m if i < 4 else m.flip(-1) for i, m in enumerate(back)]
+    back = [torch.rot90(maps[i], -(i % turns), (-2, -1)) for i in range(len(views))]
+    back = [m if i < turns else m.flip(-1) for i, m in enumerate(back)]
     return torch.stack(back).numpy()
 
 
@@ -280,14 +286,14 @@ FEATURES = (
 
 
 def peak_rows(
-    net: HeatNet, forest, depth_m: np.ndarray, intrinsics: np.ndarray
+    net: HeatNet, forest, depth_m: np.ndarray, intrinsics: np.ndarray, passes: int = 8
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Features (K, len(FEATURES)), pixels (K, 2) and 3D (K, 3) of a frame's heatmap peaks."""
     empty = np.zeros((0, len(FEATURES))), np.zeros((0, 2)), np.zeros((0, 3))
     centre = hand_centre(depth_m, intrinsics)
     if centre is None:
         return empty
-    maps = tta_heat(net, crop(depth_m, intrinsics, centre))
+    maps = tta_heat(net, crop(depth_m, intrinsics, centre), passes)
     heat, spread = maps.mean(0), maps.std(0)
     cells, uv, xyz, values = heat_peaks(heat, centre, depth_m, intrinsics, 0.3)
     if not len(uv):
@@ -483,7 +489,7 @@ def cmd_peaks(args: argparse.Namespace) -> None:
     examples = generate_examples(curled_data(args.seed, max(args.frames, 1), args.surface, 0.0))
     for example in tqdm(examples if args.frames else (), total=args.frames, mininterval=30):
         camera = np.asarray(example.intrinsics, float)
-        f, _, xyz = peak_rows(net, forest, example.depth_m, camera)
+        f, _, xyz = peak_rows(net, forest, example.depth_m, camera, args.passes)
         seen = np.isfinite(example.tips_m).all(1)
         hit = np.zeros(len(xyz), bool)
         if len(xyz) and seen.any():
@@ -499,7 +505,7 @@ def cmd_peaks(args: argparse.Namespace) -> None:
         camera = np.asarray(data.intrinsics, float)
         parts: dict[str, list] = {"F": [], "y": [], "frame": [], "uv": [], "xyz": []}
         for k, depth in enumerate(data.depth_m):
-            f, uv, xyz = peak_rows(net, forest, depth, camera)
+            f, uv, xyz = peak_rows(net, forest, depth, camera, args.passes)
             labels = _labels(uv, xyz, data, k, name == "real")
             for key, value in zip(parts, (f, labels, np.full(len(f), k), uv, xyz), strict=True):
                 parts[key].append(value)
@@ -603,6 +609,7 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=1500, help="training frames (0: none)")
     p.add_argument("--seed", type=int, default=11)
     p.add_argument("--surface", type=float, default=0.0, help="surface_tip_depth_m of the labels")
+    p.add_argument("--passes", type=int, choices=(1, 2, 8), default=8, help="averaged passes")
     p.add_argument("--validation", default="/tmp/fingertips_validation")
     p.add_argument("--heldout", default="/tmp/fingertips_heldout")
     p.add_argument("--out", required=True)
