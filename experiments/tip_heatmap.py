@@ -79,9 +79,9 @@ from torch import nn
 from tqdm import tqdm
 
 from builder.fingertip_data import data_config_from_dict, generate_examples
-from tracker.fingertips import detect_fingertips, load_forest, model_detector_config
-from tracker.fingertips.detect import candidate_peaks
-from tracker.fingertips.evaluation import match_within, read_annotated_depth
+from tracker.fingertips import Detection, detect_fingertips, load_forest, model_detector_config
+from tracker.fingertips.detect import candidate_peaks, detection_points
+from tracker.fingertips.evaluation import fingertip_metrics, read_annotated_depth
 from tracker.fingertips.pose_guess import hand_points_from_depth
 from tracker.fingertips.verify import verify_peaks
 
@@ -257,6 +257,25 @@ def heat_peaks(
         z = np.percentile(window, 10) + 0.008 if len(window) else centre[2]
         xyz.append([(a - cx) * z / fx, (b - cy) * z / fy, z])
     return cells, np.stack([u, v], 1), np.array(xyz).reshape(-1, 3), values
+
+
+def as_detections(uv: np.ndarray, xyz: np.ndarray, values: np.ndarray) -> tuple[Detection, ...]:
+    """Peaks at pixels ``uv`` (K, 2) and points ``xyz`` (K, 3) with ``values`` as detections."""
+    return tuple(
+        Detection(*map(float, (*uv[k], *xyz[k])), confidence=float(values[k]))
+        for k in range(len(uv))
+    )
+
+
+def report(detections: list[tuple[Detection, ...]], data) -> str:
+    """The package's fingertip metrics of per-frame detections, on one line."""
+    m = fingertip_metrics(detections, data.tips_m, data.tips_px)
+    precision_2d = m.recall_10px * m.annotated_tips / max(m.detections, 1)
+    return (
+        f"{m.detections} detections, P {m.precision_15mm:.3f} R {m.recall_15mm:.3f} "
+        f"({m.error_3d_mm:.1f} mm); 2D P {precision_2d:.3f} R@10px {m.recall_10px:.3f} "
+        f"({m.error_2d_px:.1f} px)"
+    )
 
 
 FEATURES = (
@@ -445,7 +464,6 @@ def cmd_eval(args: argparse.Namespace) -> None:
     for folder in args.folders:
         data = read_annotated_depth(folder)
         camera = np.asarray(data.intrinsics, float)
-        total = np.isfinite(data.tips_px).all(2).sum()
         maps = []
         for depth in data.depth_m:
             centre = hand_centre(depth, camera)
@@ -454,26 +472,21 @@ def cmd_eval(args: argparse.Namespace) -> None:
                 None if centre is None else (tta_heat(net, crop(depth, camera, centre))[0], centre)
             )
         for threshold in (0.5, 0.9, 0.97):
-            hit_px = hit_m = n = 0
-            for k, item in enumerate(maps):
-                if item is None:
-                    continue
-                _, uv, xyz, _ = heat_peaks(item[0], item[1], data.depth_m[k], camera, threshold)
-                n += len(uv)
-                seen = np.isfinite(data.tips_px[k]).all(1)
-                if len(uv) and seen.any():
-                    px = np.linalg.norm(uv[:, None] - data.tips_px[k][seen][None], axis=2)
-                    m = np.linalg.norm(xyz[:, None] - data.tips_m[k][seen][None], axis=2)
-                    hit_px += len(match_within(px, 10.0)[0])
-                    hit_m += len(match_within(m, 0.015)[0])
-            print(
-                f"{folder} threshold {threshold}: {n} peaks, 3D precision {hit_m / max(n, 1):.3f} "
-                f"recall {hit_m / total:.3f}; 2D precision {hit_px / max(n, 1):.3f} "
-                f"recall at 10 px {hit_px / total:.3f}"
-            )
+            found = [
+                ()
+                if item is None
+                else as_detections(*heat_peaks(*item, depth, camera, threshold)[1:])
+                for item, depth in zip(maps, data.depth_m, strict=True)
+            ]
+            print(f"{folder} threshold {threshold}: {report(found, data)}")
 
 
 def _labels(uv, xyz, data, k, real: bool) -> np.ndarray:
+    """Peaks near any tip (10 px on real frames, else 15 mm), not one-to-one.
+
+    Unlike ``builder.fingertip_verifier.label_peaks``, two peaks near one tip are both
+    positive; the verifiers in the experiment log were fitted on these labels.
+    """
     seen = np.isfinite(data.tips_px[k]).all(1)
     if not len(uv) or not seen.any():
         return np.zeros(len(uv), bool)
@@ -529,60 +542,38 @@ def cmd_union(args: argparse.Namespace) -> None:
     for name in ("val", "held", "real"):
         data = read_annotated_depth(str(z[f"folder{name}"]))
         camera = np.asarray(data.intrinsics, float)
-        forest_detections = []
-        for depth in data.depth_m:
-            found = detect_fingertips(depth, camera, forest, config=config)
-            forest_detections.append(
-                (
-                    np.array([(d.u_px, d.v_px) for d in found]).reshape(-1, 2),
-                    np.array([(d.x_m, d.y_m, d.z_m) for d in found]).reshape(-1, 3),
-                )
-            )
+        forest_detections = [
+            detect_fingertips(depth, camera, forest, config=config) for depth in data.depth_m
+        ]
         sets[name] = (data, forest_detections, classifier.predict_proba(z[f"F{name}"])[:, 1])
 
-    def score(name: str, threshold: float) -> tuple[float, float, float, float, float]:
-        """3D precision, recall (15 mm) and error (m); recall at 10 px and error (px)."""
-        data, forest_detections, probability = sets[name]
-        hit_px = hit_m = n = 0
-        errors_px: list[float] = []
-        errors_m: list[float] = []
-        for k, (forest_uv, forest_xyz) in enumerate(forest_detections):
+    def union(name: str, threshold: float) -> list[tuple[Detection, ...]]:
+        """Per frame: the forest's detections and the accepted peaks apart from them."""
+        _, forest_detections, probability = sets[name]
+        frames = []
+        for k, forest_found in enumerate(forest_detections):
             keep = (z[f"frame{name}"] == k) & (probability >= threshold)
-            uv, xyz = z[f"uv{name}"][keep], z[f"xyz{name}"][keep]
+            uv, xyz, p = z[f"uv{name}"][keep], z[f"xyz{name}"][keep], probability[keep]
+            forest_xyz = detection_points(forest_found)
             if len(forest_xyz) and len(xyz):
                 apart = np.linalg.norm(xyz[:, None] - forest_xyz[None], axis=2).min(1) > 0.015
-                uv, xyz = uv[apart], xyz[apart]
-            uv, xyz = np.concatenate([forest_uv, uv]), np.concatenate([forest_xyz, xyz])
-            n += len(uv)
-            seen = np.isfinite(data.tips_px[k]).all(1)
-            if len(uv) and seen.any():
-                px = np.linalg.norm(uv[:, None] - data.tips_px[k][seen][None], axis=2)
-                m = np.linalg.norm(xyz[:, None] - data.tips_m[k][seen][None], axis=2)
-                rows, cols = match_within(px, 10.0)
-                hit_px += len(rows)
-                errors_px.extend(px[rows, cols])
-                rows, cols = match_within(m, 0.015)
-                hit_m += len(rows)
-                errors_m.extend(m[rows, cols])
-        total = np.isfinite(data.tips_px).all(2).sum()
-        return (
-            hit_m / max(n, 1),
-            hit_m / total,
-            float(np.mean(errors_m)),
-            hit_px / total,
-            float(np.mean(errors_px)),
-        )
+                uv, xyz, p = uv[apart], xyz[apart], p[apart]
+            frames.append(forest_found + as_detections(uv, xyz, p))
+        return frames
+
+    def precision(name: str, threshold: float) -> float:
+        return fingertip_metrics(
+            union(name, threshold), sets[name][0].tips_m, sets[name][0].tips_px
+        ).precision_15mm
 
     def line(threshold: float) -> str:
         return " | ".join(
-            f"{name} P {p:.3f} R {r:.3f} ({1000 * mm:.1f} mm) R@10px {r10:.3f} ({px:.1f} px)"
-            for name in sets
-            for p, r, mm, r10, px in [score(name, threshold)]
+            f"{name} {report(union(name, threshold), sets[name][0])}" for name in sets
         )
 
     for threshold in np.arange(0.5, 1.0, 0.05):
         print(f"threshold {threshold:.2f}: {line(threshold)}")
-    passing = [t for t in np.arange(0.3, 1.0, 0.01) if score("val", t)[0] >= 0.95]
+    passing = [t for t in np.arange(0.3, 1.0, 0.01) if precision("val", t) >= 0.95]
     if passing:
         print(f"validation rule {passing[0]:.2f}: {line(passing[0])}")
     else:
