@@ -1,7 +1,9 @@
-"""The fingertip Hough forest as plain arrays: file format, loading and vectorised inference.
+"""The fingertip Hough forest as plain arrays: file format, loading and fast inference.
 
-All trees are packed into one node table so that every (pixel, tree) pair descends at
-once, level by level; there is no Python loop over pixels or trees.
+All trees are packed into one node table. On depth images every (pixel, tree) pair
+walks down to its leaf in a compiled loop that computes each split's feature on the
+way (:mod:`tracker.fingertips._forest_kernels`); on precomputed features every pair
+descends at once, level by level (:func:`tracker.fingertips.trees.descend`).
 
 File format (``.npz``, read with ``allow_pickle=False``):
 
@@ -53,9 +55,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from glovedb._validate import as_array
+from tracker.fingertips._forest_kernels import descend_depth_forest
 from tracker.fingertips.features import (
     intrinsics_array,
-    paired_feature_values,
     probe_image,
     read_probes,
 )
@@ -332,18 +334,26 @@ def apply_probe_image(
     """:func:`apply_depth` on the depth's :func:`~tracker.fingertips.features.probe_image`.
 
     For callers that probe the same image again (the peak verifier), so that it is
-    made once per frame.
+    made once per frame. The descent is compiled
+    (:func:`tracker.fingertips._forest_kernels.descend_depth_forest`); it gives the
+    leaves of the level-by-level NumPy descent over
+    :func:`~tracker.fingertips.features.paired_feature_values`, bit for bit.
     """
     pixels = as_array("pixels_uv", pixels_uv, (None, 2), np.int32, kind="iu")
     fx, fy, _, _ = intrinsics_array(intrinsics)
     reference = read_probes(probes_m, pixels[:, 0], pixels[:, 1])
-
-    def lookup(rows: NDArray[np.intp], feature: NDArray[np.int32]) -> NDArray[np.float32]:
-        return paired_feature_values(
-            probes_m, pixels[rows], reference[rows], forest.offsets_m[feature], (fx, fy)
-        )
-
-    return descend(forest, pixels.shape[0], lookup)
+    return descend_depth_forest(
+        np.ascontiguousarray(probes_m, dtype=np.float32),
+        np.ascontiguousarray(pixels),
+        reference.astype(np.float32),
+        forest.offsets_m,
+        (float(fx), float(fy)),
+        forest.tree_roots,
+        forest.node_feature,
+        forest.node_threshold,
+        forest.node_left,
+        forest.node_right,
+    )
 
 
 def predict_leaves(forest: FingertipForest, leaves: ArrayLike) -> ForestPrediction:
