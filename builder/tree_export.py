@@ -9,7 +9,12 @@ from typing import TypeAlias, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
-from sklearn.ensemble import ExtraTreesClassifier, ExtraTreesRegressor, RandomForestClassifier
+from sklearn.ensemble import (
+    ExtraTreesClassifier,
+    ExtraTreesRegressor,
+    HistGradientBoostingClassifier,
+    RandomForestClassifier,
+)
 
 SklearnForest: TypeAlias = ExtraTreesClassifier | RandomForestClassifier | ExtraTreesRegressor
 """The scikit-learn forests that can be exported."""
@@ -80,4 +85,59 @@ def pack_tree_table(classifier: SklearnForest) -> TreeArrays:
         node_left=np.concatenate(columns["left"]).astype(np.int32),
         node_right=np.concatenate(columns["right"]).astype(np.int32),
         node_probability=np.concatenate(columns["probability"]).astype(np.float32),
+    )
+
+
+class BoostedTreeArrays(TypedDict):
+    """Boosted trees as a node table with each leaf's log-odds contribution."""
+
+    tree_roots: NDArray[np.int32]
+    node_feature: NDArray[np.int32]
+    node_threshold: NDArray[np.float32]
+    node_left: NDArray[np.int32]
+    node_right: NDArray[np.int32]
+    node_value: NDArray[np.float32]
+    baseline: float
+
+
+def pack_boosted_table(classifier: HistGradientBoostingClassifier) -> BoostedTreeArrays:
+    """A fitted binary histogram gradient boosting classifier as one node table.
+
+    Its positive-class probability is the sigmoid of ``baseline`` plus the
+    ``node_value`` of the leaf reached in every tree
+    (:func:`tracker.fingertips.heatmap.boosted_probability`). Categorical splits and
+    missing values are not supported.
+
+    Raises
+    ------
+    ValueError
+        For a multi-class classifier or one with categorical splits.
+    """
+    if len(classifier.classes_) != 2:
+        raise ValueError("classifier: expected a binary classifier")
+    columns: dict[str, list[NDArray]] = {k: [] for k in ("feature", "threshold", "left", "right")}
+    values, roots = [], []
+    start = 0
+    for (predictor,) in classifier._predictors:
+        nodes = predictor.nodes
+        if nodes["is_categorical"].any():
+            raise ValueError("classifier: categorical splits cannot be exported")
+        split = nodes["is_leaf"] == 0
+        roots.append(start)
+        columns["feature"].append(np.where(split, nodes["feature_idx"], -1))
+        columns["threshold"].append(
+            np.where(split, _threshold_float32(nodes["num_threshold"]), np.float32(0.0))
+        )
+        columns["left"].append(np.where(split, nodes["left"].astype(np.int64) + start, -1))
+        columns["right"].append(np.where(split, nodes["right"].astype(np.int64) + start, -1))
+        values.append(np.where(split, 0.0, nodes["value"]))
+        start += len(nodes)
+    return BoostedTreeArrays(
+        tree_roots=np.asarray(roots, dtype=np.int32),
+        node_feature=np.concatenate(columns["feature"]).astype(np.int32),
+        node_threshold=np.concatenate(columns["threshold"]).astype(np.float32),
+        node_left=np.concatenate(columns["left"]).astype(np.int32),
+        node_right=np.concatenate(columns["right"]).astype(np.int32),
+        node_value=np.concatenate(values).astype(np.float32),
+        baseline=float(np.ravel(classifier._baseline_prediction)[0]),
     )

@@ -1,4 +1,4 @@
-"""Fingertip detection on one depth frame: forest, Hough voting, assignment to fingers."""
+"""Fingertip detection on one depth frame: forest, Hough voting, heatmap, assignment."""
 
 from __future__ import annotations
 
@@ -24,6 +24,7 @@ from tracker.fingertips.features import (
     stride_for_spacing,
 )
 from tracker.fingertips.forest import FingertipForest, apply_probe_image, predict_leaves
+from tracker.fingertips.heatmap import HeatmapStage, heatmap_peaks
 from tracker.fingertips.verify import peak_features, verify_peaks
 from tracker.fingertips.voting import (
     DEFAULT_VOTING,
@@ -47,13 +48,18 @@ class Detection:
         Position in the camera frame (OpenCV axes), metres.
     confidence : float
         Sum of the vote weights supporting the detection (see
-        :mod:`tracker.fingertips.voting`).
+        :mod:`tracker.fingertips.voting`); for a heatmap detection, the mean heat of
+        its cell (a probability).
     finger : str or None
         Finger name from the assignment to a posed model, None if unassigned or if no
         model was given.
     tip_probability : float or None
         The peak verifier's probability that this is a fingertip
-        (:mod:`tracker.fingertips.verify`); None if the model has no verifier.
+        (:mod:`tracker.fingertips.verify`, or the heatmap's verifier); None if the
+        model has no verifier.
+    source : str
+        ``"forest"`` (a vote peak) or ``"heatmap"`` (a peak of the whole-hand heatmap,
+        :mod:`tracker.fingertips.heatmap`).
     """
 
     u_px: float
@@ -64,6 +70,7 @@ class Detection:
     confidence: float
     finger: str | None = None
     tip_probability: float | None = None
+    source: str = "forest"
 
 
 @dataclass(frozen=True)
@@ -93,6 +100,13 @@ class DetectorConfig:
         this are dropped; 0 keeps every peak above ``c_thr`` (and is the only value
         allowed for a model without a verifier). With a verifier, ``c_thr`` only
         selects the candidate peaks.
+    heatmap_min_probability : float
+        Peaks of the model's heatmap stage (:mod:`tracker.fingertips.heatmap`) whose
+        verifier probability reaches this, and that lie farther than
+        ``voting.min_separation_m`` from every forest detection and every more
+        probable heat peak, are added to the detections; 0 turns the stage off (and is
+        the only value allowed for a model without one). The stage also needs
+        ``min_tip_probability`` > 0.
     voting : VotingConfig
     """
 
@@ -102,6 +116,7 @@ class DetectorConfig:
     depth_band_m: float = math.inf
     max_pixels: int = 0
     min_tip_probability: float = 0.0
+    heatmap_min_probability: float = 0.0
     voting: VotingConfig = DEFAULT_VOTING
 
     def __post_init__(self) -> None:
@@ -118,6 +133,15 @@ class DetectorConfig:
         if not 0 <= self.min_tip_probability <= 1:
             raise ValueError(
                 f"min_tip_probability: expected a probability, got {self.min_tip_probability}"
+            )
+        if not 0 <= self.heatmap_min_probability <= 1:
+            raise ValueError(
+                "heatmap_min_probability: expected a probability, "
+                f"got {self.heatmap_min_probability}"
+            )
+        if self.heatmap_min_probability > 0 and self.min_tip_probability == 0:
+            raise ValueError(
+                "heatmap_min_probability: the heatmap stage needs min_tip_probability > 0"
             )
 
     def as_dict(self) -> dict[str, Any]:
@@ -309,18 +333,48 @@ def detect_fingertips(
             "min_tip_probability: the model has no peak verifier; use 0 or a model "
             "trained with a [verifier] table"
         )
+    if config.heatmap_min_probability > 0 and model.heatmap is None:
+        raise ValueError(
+            "heatmap_min_probability: the model has no heatmap stage; use 0 or a model "
+            "trained with a [heatmap] table"
+        )
+    depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
     tip_probability: NDArray[np.float32] | None = None
+    candidates = Peaks(np.zeros((0, 3), np.float32), np.zeros(0, np.float32))
+    candidate_probability = np.zeros(0, np.float32)
     if model.verifier is None:
-        votes = _frame_votes(depth_m, camera, model, config)[0]
+        votes = _frame_votes(depth, camera, model, config)[0]
         peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
     else:
-        peaks, features = candidate_peaks(depth_m, camera, model, config=config)
-        tip_probability = verify_peaks(model.verifier, features)
-        keep = tip_probability >= config.min_tip_probability
-        peaks = Peaks(peaks.positions_m[keep], peaks.confidences[keep])
-        tip_probability = tip_probability[keep]
+        candidates, features = candidate_peaks(depth, camera, model, config=config)
+        candidate_probability = verify_peaks(model.verifier, features)
+        keep = candidate_probability >= config.min_tip_probability
+        peaks = Peaks(candidates.positions_m[keep], candidates.confidences[keep])
+        tip_probability = candidate_probability[keep]
+    detections = _forest_detections(peaks, tip_probability, camera)
+    if config.heatmap_min_probability > 0 and model.heatmap is not None:
+        detections += _heatmap_detections(
+            depth, camera, model.heatmap, config, candidates, candidate_probability, detections
+        )
+    if model_tips_m is None:
+        return detections
+    return name_fingers(
+        detections,
+        model_tips_m,
+        c_thr=config.c_thr,
+        min_tip_probability=config.min_tip_probability,
+        heatmap_min_probability=config.heatmap_min_probability,
+        lam=lam,
+        distance_unit_m=distance_unit_m,
+    )
+
+
+def _forest_detections(
+    peaks: Peaks, tip_probability: NDArray[np.float32] | None, camera: NDArray[np.float64]
+) -> tuple[Detection, ...]:
+    """Vote peaks (with their verifier probabilities, if any) as detections."""
     uv = project(peaks.positions_m.astype(np.float64), camera)
-    detections = tuple(
+    return tuple(
         Detection(
             u_px=float(uv[k, 0]),
             v_px=float(uv[k, 1]),
@@ -332,15 +386,49 @@ def detect_fingertips(
         )
         for k in range(peaks.confidences.size)
     )
-    if model_tips_m is None:
-        return detections
-    return name_fingers(
-        detections,
-        model_tips_m,
-        c_thr=config.c_thr,
+
+
+def _heatmap_detections(
+    depth_m: NDArray[np.float32],
+    camera: NDArray[np.float64],
+    stage: HeatmapStage,
+    config: DetectorConfig,
+    candidates: Peaks,
+    candidate_probability: NDArray[np.float32],
+    forest_detections: tuple[Detection, ...],
+) -> tuple[Detection, ...]:
+    """The heatmap's accepted peaks, most probable first, each farther than the voting's
+    ``min_separation_m`` from every forest detection and every more probable one."""
+    peaks, probability = heatmap_peaks(
+        depth_m,
+        camera,
+        stage,
+        candidates.positions_m.astype(np.float64),
+        candidates.confidences.astype(np.float64),
+        candidate_probability.astype(np.float64),
         min_tip_probability=config.min_tip_probability,
-        lam=lam,
-        distance_unit_m=distance_unit_m,
+    )
+    separation = config.voting.min_separation_m
+    taken = list(detection_points(forest_detections))
+    order = []
+    for k in np.argsort(-probability, kind="stable"):  # most probable first
+        if probability[k] < config.heatmap_min_probability:
+            break
+        if all(np.linalg.norm(peaks.xyz_m[k] - point) > separation for point in taken):
+            order.append(k)
+            taken.append(peaks.xyz_m[k])
+    return tuple(
+        Detection(
+            u_px=float(peaks.uv_px[k, 0]),
+            v_px=float(peaks.uv_px[k, 1]),
+            x_m=float(peaks.xyz_m[k, 0]),
+            y_m=float(peaks.xyz_m[k, 1]),
+            z_m=float(peaks.xyz_m[k, 2]),
+            confidence=float(peaks.values[k]),
+            tip_probability=float(probability[k]),
+            source="heatmap",
+        )
+        for k in order
     )
 
 
@@ -350,6 +438,7 @@ def name_fingers(
     *,
     c_thr: float,
     min_tip_probability: float = 0.0,
+    heatmap_min_probability: float = 0.0,
     lam: float = 1.2,
     distance_unit_m: float = 0.01,
 ) -> tuple[Detection, ...]:
@@ -358,7 +447,8 @@ def name_fingers(
     A detection's weight ``w_s`` (the cost of leaving it unassigned is ``lam * w_s``)
     is its confidence over ``c_thr``, as in the paper, or, for verified detections
     (``min_tip_probability > 0``), its verifier probability over
-    ``min_tip_probability``: in both cases 1 at the threshold that kept it.
+    ``min_tip_probability`` (over ``heatmap_min_probability`` for the heatmap's
+    detections): in every case 1 at the threshold that kept it.
 
     Parameters
     ----------
@@ -370,6 +460,8 @@ def name_fingers(
         The confidence threshold the detections were kept with.
     min_tip_probability : float
         The verifier threshold they were kept with (0: none).
+    heatmap_min_probability : float
+        The heatmap verifier's threshold (used only for heatmap detections).
     lam : float
         Weight lambda of the assignment.
     distance_unit_m : float
@@ -383,9 +475,14 @@ def name_fingers(
     tips = as_array("model_tips_m", model_tips_m, (len(FINGER_NAMES), 3), np.float64)
     positions = detection_points(detections)
     verified = min_tip_probability > 0 and all(d.tip_probability is not None for d in detections)
-    if verified:
-        weights = np.array([d.tip_probability for d in detections], dtype=np.float64)
-        threshold = min_tip_probability
+    if any(d.source == "heatmap" for d in detections) and not heatmap_min_probability > 0:
+        raise ValueError("heatmap_min_probability: needed to weigh the heatmap's detections")
+    if verified:  # each probability over the threshold that kept it
+        thresholds = {"forest": min_tip_probability, "heatmap": heatmap_min_probability}
+        weights = np.array(
+            [float(d.tip_probability or 0.0) for d in detections], dtype=np.float64
+        ) / np.array([thresholds[d.source] for d in detections], dtype=np.float64)
+        threshold = 1.0
     else:
         weights = np.array([d.confidence for d in detections], dtype=np.float64)
         threshold = c_thr

@@ -139,6 +139,7 @@ class FingertipDetector:
                 guess.keypoints_3d_m[list(FINGERTIP_KEYPOINTS)],
                 c_thr=self.config.c_thr,
                 min_tip_probability=self.config.min_tip_probability,
+                heatmap_min_probability=self.config.heatmap_min_probability,
             )
         return {
             "frame": int(frame),

@@ -30,6 +30,7 @@ key                     shape, dtype        meaning
                                             positive training pixels reaching the node
                                             (0 where there are none)
 ``verifier_*``          see below           optional (format 2): the peak verifier
+``heatmap_*``           see below           optional (format 3): the heatmap stage
 ======================  ==================  ===============================================
 
 The peak verifier (:class:`tracker.fingertips.verify.PeakVerifier`) is stored as
@@ -39,6 +40,14 @@ same node table layout) and ``verifier_features`` ``(F',) str``, the names of th
 features it was trained on; a model whose names differ from
 :data:`tracker.fingertips.verify.PEAK_FEATURES` is refused. Format 1 files (no
 verifier) are still read.
+
+The heatmap stage (:class:`tracker.fingertips.heatmap.HeatmapStage`) is stored as
+``heatmap_network_onnx`` ``(B,) uint8`` (the ONNX network), its verifier's node table
+``heatmap_tree_roots``, ``heatmap_node_feature``, ``heatmap_node_threshold``,
+``heatmap_node_left``, ``heatmap_node_right``, ``heatmap_node_value``, the scalars
+``heatmap_baseline``, ``heatmap_passes`` and ``heatmap_min_value``, and
+``heatmap_features`` ``(F'',) str``, checked against
+:data:`tracker.fingertips.heatmap.HEAT_PEAK_FEATURES`.
 """
 
 from __future__ import annotations
@@ -61,12 +70,13 @@ from tracker.fingertips.features import (
     probe_image,
     read_probes,
 )
+from tracker.fingertips.heatmap import HEAT_PEAK_FEATURES, HeatmapStage
 from tracker.fingertips.trees import FeatureLookup, check_tree_table, descend
 from tracker.fingertips.verify import PEAK_FEATURES, PeakVerifier
 
 FORMAT_NAME = "glove-fingertip-forest"
-FORMAT_VERSION = 2
-READABLE_VERSIONS = (1, 2)
+FORMAT_VERSION = 3
+READABLE_VERSIONS = (1, 2, 3)
 _VERIFIER_ARRAYS = (
     "tree_roots",
     "node_feature",
@@ -99,7 +109,8 @@ class FingertipForest:
     """A trained fingertip forest; see the module docstring for the meaning of each array.
 
     ``verifier`` is the optional peak verifier trained with it (None: detection keeps
-    peaks by their vote weight alone).
+    peaks by their vote weight alone); ``heatmap`` the optional second stage
+    (:mod:`tracker.fingertips.heatmap`), which needs the verifier.
     """
 
     offsets_m: NDArray[np.float32]
@@ -114,6 +125,7 @@ class FingertipForest:
     settings_json: str = "{}"
     version: str = ""
     verifier: PeakVerifier | None = None
+    heatmap: HeatmapStage | None = None
 
     def __post_init__(self) -> None:
         _check_forest(self)
@@ -159,6 +171,8 @@ def _check_forest(forest: FingertipForest) -> None:
     as_array("node_threshold", forest.node_threshold, (n,), finite=True)
     as_array("offsets_m", forest.offsets_m, (None, 2, 2), finite=True)
     check_tree_table(forest, forest.offsets_m.shape[0])
+    if forest.heatmap is not None and forest.verifier is None:
+        raise ValueError("heatmap: the heatmap stage needs the forest's peak verifier")
     try:
         json.loads(forest.settings_json)
     except ValueError as error:
@@ -187,6 +201,7 @@ def save_forest(forest: FingertipForest, path: str | os.PathLike[str]) -> None:
         node_probability=forest.node_probability.astype(np.float32),
         node_offset_m=forest.node_offset_m.astype(np.float32),
         **_verifier_arrays(forest.verifier),
+        **_heatmap_arrays(forest.heatmap),
     )
     target = Path(path)
     temporary = target.with_name(f".{target.name}.{os.getpid()}.part")
@@ -203,6 +218,52 @@ def _verifier_arrays(verifier: PeakVerifier | None) -> dict[str, NDArray]:
         return {}
     arrays = {f"verifier_{name}": getattr(verifier, name) for name in _VERIFIER_ARRAYS}
     return {**arrays, "verifier_features": np.array(PEAK_FEATURES)}
+
+
+_HEATMAP_TABLE = (
+    "tree_roots",
+    "node_feature",
+    "node_threshold",
+    "node_left",
+    "node_right",
+    "node_value",
+)
+
+
+def _heatmap_arrays(stage: HeatmapStage | None) -> dict[str, NDArray]:
+    if stage is None:
+        return {}
+    arrays = {f"heatmap_{name}": getattr(stage, name) for name in _HEATMAP_TABLE}
+    return {
+        **arrays,
+        "heatmap_network_onnx": stage.network_onnx.astype(np.uint8),
+        "heatmap_baseline": np.array(stage.baseline, dtype=np.float64),
+        "heatmap_passes": np.array(stage.passes, dtype=np.int64),
+        "heatmap_min_value": np.array(stage.min_value, dtype=np.float64),
+        "heatmap_features": np.array(HEAT_PEAK_FEATURES),
+    }
+
+
+def _read_heatmap(data: Any, path: str) -> HeatmapStage | None:
+    if "heatmap_network_onnx" not in data:
+        return None
+    names = tuple(str(name) for name in data["heatmap_features"])
+    if names != HEAT_PEAK_FEATURES:
+        raise ValueError(
+            f"{path}: its heatmap verifier uses other peak features than this code; "
+            "retrain the model (docs/fingertips.md)"
+        )
+    kinds = {"node_threshold": np.float32, "node_value": np.float32}
+    return HeatmapStage(
+        network_onnx=data["heatmap_network_onnx"].astype(np.uint8),
+        **{
+            name: data[f"heatmap_{name}"].astype(kinds.get(name, np.int32))
+            for name in _HEATMAP_TABLE
+        },
+        baseline=float(data["heatmap_baseline"]),
+        passes=int(data["heatmap_passes"]),
+        min_value=float(data["heatmap_min_value"]),
+    )
 
 
 def _read_verifier(data: Any, path: str) -> PeakVerifier | None:
@@ -261,6 +322,7 @@ def _forest_from_archive(data: Any, path: str) -> FingertipForest:
         )
     near, far = (float(x) for x in data["depth_range_m"])
     verifier = _read_verifier(data, path)
+    heatmap = _read_heatmap(data, path)
     try:
         return FingertipForest(
             offsets_m=data["offsets_m"].astype(np.float32),
@@ -275,6 +337,7 @@ def _forest_from_archive(data: Any, path: str) -> FingertipForest:
             settings_json=str(data["settings_json"]),
             version=str(data["version"]),
             verifier=verifier,
+            heatmap=heatmap,
         )
     except ValueError as error:
         raise ValueError(f"{path}: damaged {FORMAT_NAME} file ({error})") from error
