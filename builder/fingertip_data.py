@@ -817,7 +817,7 @@ def require_one_camera(config: FingertipDataConfig) -> None:
         )
 
 
-CONFIG_TABLES = ("data", "training", "detector", "verifier")
+CONFIG_TABLES = ("data", "training", "detector", "verifier", "heatmap")
 """The tables of a fingertip config file (``configs/fingertips/*.toml``)."""
 
 

@@ -533,18 +533,24 @@ class FingertipRecipe:
     verifier : VerifierTrainingConfig or None
         How the peak verifier is trained (:mod:`builder.fingertip_verifier`); None:
         no verifier.
+    heatmap : dict or None
+        The ``[heatmap]`` table: how the heatmap stage is trained
+        (:class:`builder.fingertip_heatmap.HeatmapTrainingConfig`, read only when
+        training, since it needs PyTorch); None: no heatmap stage.
     """
 
     data: FingertipDataConfig
     training: FingertipTrainingConfig
     detector: DetectorConfig
     verifier: VerifierTrainingConfig | None = None
+    heatmap: Mapping[str, Any] | None = None
 
 
 def load_recipe(path: str | os.PathLike[str], **data_overrides: Any) -> FingertipRecipe:
     """Read a ``configs/fingertips/*.toml`` file.
 
-    Tables: ``data``, ``training``, ``detector`` and the optional ``verifier``.
+    Tables: ``data``, ``training``, ``detector`` and the optional ``verifier`` and
+    ``heatmap`` (which needs ``verifier``).
 
     Parameters
     ----------
@@ -568,7 +574,14 @@ def load_recipe(path: str | os.PathLike[str], **data_overrides: Any) -> Fingerti
         {**detector_table, "depth_band_m": _json_number(training.depth_band_m)}
     )
     verifier = verifier_config_from_dict(content["verifier"]) if "verifier" in content else None
-    return FingertipRecipe(data, training, detector, verifier)
+    heatmap = content.get("heatmap")
+    if heatmap is not None and verifier is None:
+        raise ValueError(f"{os.fspath(path)}: a [heatmap] table needs a [verifier] table")
+    if detector.heatmap_min_probability > 0 and heatmap is None:
+        raise ValueError(
+            f"{os.fspath(path)}: detector: heatmap_min_probability needs a [heatmap] table"
+        )
+    return FingertipRecipe(data, training, detector, verifier, heatmap)
 
 
 def _hidden_tips(example: FingertipExample) -> NDArray[np.float64]:
@@ -578,9 +591,13 @@ def _hidden_tips(example: FingertipExample) -> NDArray[np.float64]:
 
 
 def train_from_recipe(
-    recipe: FingertipRecipe, *, progress: bool = False, forest: FingertipForest | None = None
+    recipe: FingertipRecipe,
+    *,
+    progress: bool = False,
+    forest: FingertipForest | None = None,
+    keep_verifier: bool = False,
 ) -> FingertipForest:
-    """Render the recipe's training images and train the forest (and verifier) on them.
+    """Render the recipe's training images and train the forest, verifier and heatmap.
 
     Parameters
     ----------
@@ -588,14 +605,29 @@ def train_from_recipe(
     progress : bool
         Show a progress bar (on a terminal).
     forest : FingertipForest, optional
-        Keep this trained forest and only train the recipe's verifier for it (the
-        recipe's detector settings replace the recorded ones).
+        Keep this trained forest and only train the recipe's verifier (and heatmap
+        stage) for it (the recipe's detector settings replace the recorded ones).
+    keep_verifier : bool
+        Also keep ``forest``'s peak verifier: train only the heatmap stage.
 
     Returns
     -------
     FingertipForest
-        With the data, detector, training and verifier settings recorded.
+        With the data, detector, training, verifier and heatmap settings recorded.
+
+    Raises
+    ------
+    ValueError
+        When there is nothing to train, or the recipe has a ``[heatmap]`` table and
+        PyTorch is not installed.
     """
+    heatmap = _heatmap_config(recipe.heatmap)
+    if keep_verifier:
+        if forest is None or forest.verifier is None:
+            raise ValueError("keep_verifier: needs a given forest that has a peak verifier")
+        if heatmap is None:
+            raise ValueError("the config has no [heatmap] table: nothing to train")
+        return _train_heatmap(forest, recipe, heatmap, progress)
     from tqdm import tqdm
 
     from builder.fingertip_data import generate_examples
@@ -621,10 +653,38 @@ def train_from_recipe(
         raise ValueError("the config has no [verifier] table: nothing to train for the forest")
     if recipe.verifier is None:
         return forest
-    return train_verifier(
-        replace(forest, verifier=None),
+    forest = train_verifier(
+        replace(forest, verifier=None, heatmap=None),
         recipe.data,
         recipe.detector,
         recipe.verifier,
         progress=progress,
     )
+    if heatmap is None:
+        return forest
+    return _train_heatmap(forest, recipe, heatmap, progress)
+
+
+def _heatmap_config(table: Mapping[str, Any] | None) -> Any:
+    """The recipe's :class:`builder.fingertip_heatmap.HeatmapTrainingConfig`, or None.
+
+    Raises ValueError when there is a table but PyTorch is missing.
+    """
+    if table is None:
+        return None
+    try:
+        from builder.fingertip_heatmap import heatmap_config_from_dict
+    except ImportError as error:
+        raise ValueError(
+            f"[heatmap]: training the heatmap stage needs PyTorch ({error}); "
+            'install it with: pip install -e ".[train]"'
+        ) from error
+    return heatmap_config_from_dict(table)
+
+
+def _train_heatmap(
+    forest: FingertipForest, recipe: FingertipRecipe, heatmap: Any, progress: bool
+) -> FingertipForest:
+    from builder.fingertip_heatmap import train_heatmap
+
+    return train_heatmap(forest, recipe.data, recipe.detector, heatmap, progress=progress)

@@ -3,8 +3,9 @@
 #   - system libraries: EGL with Mesa's drivers (headless rendering, software on a
 #     machine without a GPU), libGL/libX11 and libusb/libudev (Open3D), libgomp
 #     (scikit-learn), and Python's venv module if the distribution split it off;
-#   - a virtual environment in .venv with the project installed (editable) and its
-#     test tools.
+#   - a virtual environment in .venv with the project installed (editable), its test
+#     tools and its training extra (PyTorch's CPU build and onnx, which only training
+#     the fingertip heatmap network needs).
 # Running it again is quick: it installs only what is missing or changed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -39,8 +40,11 @@ wanted=$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -c1-16)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$wanted" ]; then
   echo "setup: installing the project into .venv"
   .venv/bin/python -m pip install -q --upgrade pip 2>&1 | grep -v "^WARNING: Location" || true
-  .venv/bin/python -m pip install -q -e ".[dev]" 2>&1 | grep -v "^WARNING: Location" || true
-  .venv/bin/python -c "import glovedb, builder, tracker, open3d, pyrender" \
+  .venv/bin/python -c "import torch" 2>/dev/null \
+    || .venv/bin/python -m pip install -q torch --index-url https://download.pytorch.org/whl/cpu 2>&1 \
+    | grep -v "^WARNING: Location" || true
+  .venv/bin/python -m pip install -q -e ".[dev,train]" 2>&1 | grep -v "^WARNING: Location" || true
+  .venv/bin/python -c "import glovedb, builder, tracker, open3d, pyrender, torch, onnx" \
     || { echo "setup: the installed project does not import" >&2; exit 1; }
   echo "$wanted" > "$stamp"
 fi

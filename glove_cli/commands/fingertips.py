@@ -42,7 +42,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument(
         "--forest",
         metavar="MODEL",
-        help="keep the Hough forest of this model and train only the config's [verifier]",
+        help="keep the Hough forest of this model and train only the config's [verifier] "
+        "and [heatmap]",
+    )
+    train.add_argument(
+        "--keep-verifier",
+        action="store_true",
+        help="with --forest: keep its peak verifier too and train only the [heatmap] stage",
     )
     _add_noise_option(train)
     train.set_defaults(run=run_train)
@@ -134,7 +140,13 @@ def _add_model_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--min-tip-probability",
         type=float,
-        help="smallest peak verifier probability kept (default: the model's; 0: no check)",
+        help="smallest peak verifier probability kept (default: the model's; 0: no check, "
+        "and no heatmap stage)",
+    )
+    parser.add_argument(
+        "--heatmap-min-probability",
+        type=float,
+        help="smallest heatmap verifier probability added (default: the model's; 0: no heatmap)",
     )
     parser.add_argument("--stride", type=int, help="fixed pixel stride (default: the model's)")
 
@@ -164,9 +176,13 @@ def run_train(args: argparse.Namespace) -> int:
     if not out.parent.is_dir():
         raise ValueError(f"{out.parent}: folder does not exist")
     recipe = load_recipe(args.config, **_data_overrides(args))
+    if args.keep_verifier and not args.forest:
+        raise ValueError("--keep-verifier: needs --forest MODEL")
     base = load_forest(args.forest) if args.forest else None
     started = time.perf_counter()
-    forest = train_from_recipe(recipe, progress=sys.stderr.isatty(), forest=base)
+    forest = train_from_recipe(
+        recipe, progress=sys.stderr.isatty(), forest=base, keep_verifier=args.keep_verifier
+    )
     save_forest(forest, out)
     size_mb = out.stat().st_size / 1e6
     print(
@@ -216,8 +232,14 @@ def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
         if not args.c_thr > 0:
             raise ValueError(f"--c-thr: expected a positive threshold, got {args.c_thr}")
         config = replace(config, c_thr=args.c_thr)
+    thresholds: dict[str, float] = {}
     if args.min_tip_probability is not None:
-        config = replace(config, min_tip_probability=args.min_tip_probability)
+        thresholds["min_tip_probability"] = args.min_tip_probability
+        if args.min_tip_probability == 0:  # the heatmap stage needs the verifier
+            thresholds["heatmap_min_probability"] = 0.0
+    if args.heatmap_min_probability is not None:
+        thresholds["heatmap_min_probability"] = args.heatmap_min_probability
+    config = replace(config, **thresholds)
     if _positive("--stride", args.stride) is not None:
         config = replace(config, stride=args.stride, pixel_spacing_m=0.0)
     return model, config

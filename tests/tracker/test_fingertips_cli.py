@@ -60,6 +60,8 @@ def run_glove(*args: str) -> subprocess.CompletedProcess:
         (["fingertips", "train", "/no/config.toml", "--out", "m.npz"], "cannot read config"),
         (["fingertips", "train", "/no/config.toml", "--out", "m.txt"], "ends in .npz"),
         (["fingertips", "eval", ".", "--min-tip-probability", "2"], "expected a probability"),
+        (["fingertips", "eval", ".", "--heatmap-min-probability", "-1"], "expected a probability"),
+        (["fingertips", "train", HELDOUT, "--out", "m.npz", "--keep-verifier"], "needs --forest"),
         (["fingertips", "eval", ".", "--c-thr", "inf"], "expected a positive, finite"),
         (["fingertips", "eval", str(REAL), "--pose-guess"], "need groundtruth.jsonl"),
         (["fingertips", "eval", ".", "--sheet", "scores.txt"], "expected a .png"),
@@ -257,3 +259,35 @@ def test_train_and_synth_on_a_tiny_config(tmp_path: Path) -> None:
     result = run_glove("fingertips", "eval", str(folder), "--model", str(checked), "--json")
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["detector"]["min_tip_probability"] == 0.5
+    # Then only a heatmap stage for that forest and verifier.
+    with open(config, "a") as stream:
+        stream.write(
+            "[heatmap]\ncrop_seeds = [3]\ncrops_per_seed = 8\nwidth = 2\nbatch_size = 4\n"
+            "whole_hand_epochs = 1\nall_epochs = 1\nverifier_images = 12\n"
+            "verifier_iterations = 5\nmin_value = 0.0\n[heatmap.data]\ncurl_fraction = 0.5\n"
+        )
+    config.write_text(
+        config.read_text().replace(
+            "min_tip_probability = 0.5", "min_tip_probability = 0.5\nheatmap_min_probability = 0.5"
+        )
+    )
+    staged = tmp_path / "staged.npz"
+    result = run_glove(
+        "fingertips",
+        "train",
+        str(config),
+        "--forest",
+        str(checked),
+        "--keep-verifier",
+        "--out",
+        str(staged),
+    )
+    assert result.returncode == 0, result.stderr
+    heatmap = load_forest(staged).heatmap
+    assert heatmap is not None and heatmap.tree_roots.size == 5
+    np.testing.assert_array_equal(
+        load_forest(staged).verifier.node_threshold, verifier.node_threshold
+    )
+    result = run_glove("fingertips", "eval", str(folder), "--model", str(staged), "--json")
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["detector"]["heatmap_min_probability"] == 0.5

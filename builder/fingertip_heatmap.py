@@ -1,0 +1,580 @@
+"""Training of the whole-hand heatmap stage (:mod:`tracker.fingertips.heatmap`).
+
+Needs PyTorch (the optional ``train`` extra: ``pip install -e ".[train]"``); nothing
+at run time does. Four steps, all deterministic on a CPU:
+
+1. **Crops** (:func:`render_crops`): frames rendered with the recipe's ``[data]``
+   settings overridden by ``[heatmap.data]``, one run of ``crops_per_seed`` frames per
+   seed of ``crop_seeds``; each gives the hand crop and its visible fingertips (the
+   data's visibility rule, with ``surface_tip_depth_m`` a tip hidden by a few
+   centimetres is the surface point in front of it) in the crop's [-1, 1] units.
+2. **Network** (:func:`train_network`): a small U-Net (:class:`HeatNet`) learns the
+   per-cell logit that a fingertip lies there. Targets are Gaussians (``sigma_cells``)
+   at the visible tips; the loss is binary cross-entropy with positive weight
+   ``positive_weight``; each batch is turned by a random angle and mirrored half of
+   the time. First ``whole_hand_epochs`` on the crops whose cube holds every keypoint,
+   then ``all_epochs`` on all of them, each with a one-cycle learning rate schedule.
+3. **Export** (:func:`export_onnx`): ONNX bytes that onnxruntime runs at detection.
+4. **Verifier** (:func:`collect_heat_samples`, :func:`fit_heat_verifier`): on
+   ``verifier_images`` more frames the exported network's peaks are described by
+   :func:`tracker.fingertips.heatmap.heat_peak_features` and labelled true when within
+   ``match_radius_m`` of a visible fingertip; scikit-learn's histogram gradient boosting
+   learns the label and is exported to a node table.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+import time
+import warnings
+from collections.abc import Iterable, Mapping
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from sklearn.ensemble import HistGradientBoostingClassifier
+from torch import nn
+
+from builder.fingertip_data import FingertipDataConfig, data_config_from_dict, generate_examples
+from builder.tree_export import pack_boosted_table
+from glovedb._validate import dataclass_from_table
+from tracker.fingertips.detect import DetectorConfig, candidate_peaks
+from tracker.fingertips.forest import FingertipForest
+from tracker.fingertips.heatmap import (
+    CROP_HALF_M,
+    GRID,
+    HEAT_PEAK_FEATURES,
+    PASSES,
+    HeatmapNetwork,
+    HeatmapStage,
+    frame_heat_peaks,
+    hand_centre,
+    hand_crop,
+)
+from tracker.fingertips.verify import verify_peaks
+
+_WHOLE_HAND_XY_M = 0.14
+"""A crop holds the whole hand when every keypoint lies this close to its centre (x, y)."""
+
+
+@dataclass(frozen=True)
+class HeatmapTrainingConfig:
+    """Settings of the heatmap stage's training (the ``[heatmap]`` table).
+
+    Attributes
+    ----------
+    data : dict
+        Settings of the recipe's ``[data]`` table replaced for the heatmap's frames
+        (the ``[heatmap.data]`` table).
+    crop_seeds : tuple of int
+        One run of ``crops_per_seed`` rendered frames per seed gives the network's
+        training crops.
+    crops_per_seed : int
+    width : int
+        Channels of the network's stem (:class:`HeatNet`).
+    whole_hand_epochs, all_epochs : int
+        Epochs on the crops holding the whole hand, then on all crops.
+    whole_hand_learning_rate, all_learning_rate : float
+        Peak of each stage's one-cycle schedule.
+    batch_size : int
+    positive_weight : float
+        Weight of the fingertip cells in the binary cross-entropy.
+    sigma_cells : float
+        Width of the target Gaussians, heatmap cells.
+    passes : int
+        Averaged passes at detection (:func:`tracker.fingertips.heatmap.crop_views`).
+    min_value : float
+        Smallest mean heat of a peak given to the verifier.
+    verifier_seed, verifier_images : int
+        Seed and number of the verifier's frames (rendered at full resolution).
+    match_radius_m : float
+        A peak within this distance of a visible fingertip is a true one.
+    verifier_iterations, verifier_leaf_nodes : int
+        Boosting iterations and leaves per tree.
+    verifier_learning_rate : float
+    seed : int
+        Seeds PyTorch, the crop order and the boosting.
+    """
+
+    data: Mapping[str, Any] | None = None
+    crop_seeds: tuple[int, ...] = (101, 102, 103, 104, 105)
+    crops_per_seed: int = 7000
+    width: int = 8
+    whole_hand_epochs: int = 18
+    all_epochs: int = 5
+    whole_hand_learning_rate: float = 2e-3
+    all_learning_rate: float = 1e-3
+    batch_size: int = 64
+    positive_weight: float = 20.0
+    sigma_cells: float = 1.2
+    passes: int = 8
+    min_value: float = 0.3
+    verifier_seed: int = 11
+    verifier_images: int = 5000
+    match_radius_m: float = 0.015
+    verifier_iterations: int = 300
+    verifier_leaf_nodes: int = 31
+    verifier_learning_rate: float = 0.05
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("crops_per_seed", "width", "batch_size", "verifier_images"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected at least 1, got {getattr(self, name)}")
+        if not self.crop_seeds:
+            raise ValueError("crop_seeds: expected at least one seed")
+        if self.whole_hand_epochs < 0 or self.all_epochs < 0:
+            raise ValueError("whole_hand_epochs, all_epochs: expected 0 or more")
+        if self.whole_hand_epochs + self.all_epochs < 1:
+            raise ValueError("whole_hand_epochs + all_epochs: expected at least one epoch")
+        if self.passes not in PASSES:
+            raise ValueError(f"passes: expected one of {PASSES}, got {self.passes}")
+        if not 0 <= self.min_value < 1:
+            raise ValueError(f"min_value: expected a probability below 1, got {self.min_value}")
+        for name in ("match_radius_m", "sigma_cells", "positive_weight"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}: expected a positive value, got {getattr(self, name)}")
+
+    def heatmap_data(self, data: FingertipDataConfig) -> FingertipDataConfig:
+        """The recipe's data settings with ``[heatmap.data]`` applied."""
+        table = {**asdict(data), **(self.data or {})}
+        return data_config_from_dict(table)
+
+
+def heatmap_config_from_dict(table: Mapping[str, Any]) -> HeatmapTrainingConfig:
+    """Build a :class:`HeatmapTrainingConfig` from a TOML table; unknown keys are errors."""
+    values = dict(table)
+    data = values.pop("data", None)
+    if data is not None:
+        data_config_from_dict(data)  # unknown or invalid data keys fail here, by name
+    return replace(dataclass_from_table(HeatmapTrainingConfig, values, "heatmap"), data=data)
+
+
+# --- crops --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Crops:
+    """Hand crops and their fingertips.
+
+    Attributes
+    ----------
+    images : (N, CROP_PX, CROP_PX) float16
+        :func:`tracker.fingertips.heatmap.hand_crop` of each frame.
+    tips : (N, 5, 2) float32
+        Visible fingertips in the crop's [-1, 1] units (x right, y down); NaN if hidden.
+    whole_hand : (N,) bool
+        Every keypoint of the hand lies inside the crop's cube.
+    """
+
+    images: NDArray[np.float16]
+    tips: NDArray[np.float32]
+    whole_hand: NDArray[np.bool_]
+
+
+def crop_units(points_m: NDArray[np.float64], centre: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Positions ``(..., 2)`` of 3D points in the crop's [-1, 1] frame, through its pinhole."""
+    rays = points_m[..., :2] / points_m[..., 2:3] - centre[:2] / centre[2]
+    return rays * centre[2] / CROP_HALF_M
+
+
+def render_crops(
+    data: FingertipDataConfig, seeds: Iterable[int], per_seed: int, *, progress: bool = False
+) -> Crops:
+    """Render ``per_seed`` frames for each seed and crop the hand of each.
+
+    Frames without an object in view are skipped.
+    """
+    from tqdm import tqdm
+
+    images, tips, whole = [], [], []
+    for seed in seeds:
+        frames = generate_examples(replace(data, seed=seed, n_images=per_seed))
+        for example in tqdm(
+            frames, total=per_seed, desc=f"crops (seed {seed})", unit="img", disable=not progress
+        ):
+            camera = np.asarray(example.intrinsics, dtype=np.float64)
+            centre = hand_centre(example.depth_m, camera)
+            if centre is None:
+                continue
+            images.append(hand_crop(example.depth_m, camera, centre).astype(np.float16))
+            tips.append(crop_units(example.tips_m, centre))
+            local = example.keypoints_m - centre
+            whole.append(
+                bool(
+                    (np.abs(local[:, :2]) < _WHOLE_HAND_XY_M).all()
+                    and (np.abs(local[:, 2]) < CROP_HALF_M).all()
+                )
+            )
+    if not images:
+        raise ValueError("heatmap: no rendered frame had a hand in view")
+    return Crops(np.stack(images), np.array(tips, np.float32), np.array(whole, bool))
+
+
+# --- network ------------------------------------------------------------------------
+
+
+def _block(n_in: int, n_out: int) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(n_in, n_out, 3, padding=1),
+        nn.BatchNorm2d(n_out),
+        nn.ReLU(),
+        nn.Conv2d(n_out, n_out, 3, padding=1),
+        nn.BatchNorm2d(n_out),
+        nn.ReLU(),
+    )
+
+
+class HeatNet(nn.Module):
+    """``(N, 1, 64, 64)`` hand crops to ``(N, 32, 32)`` logits of "a fingertip is here".
+
+    A U-Net: a stride-2 stem of ``width`` channels, an encoder down to 4 x 4 (2, 4, 8
+    and 8 times ``width`` channels), a decoder with skips back to 32 x 32 (6, 4 and 2
+    times ``width``) and a 1 x 1 output.
+    """
+
+    def __init__(self, width: int = 8) -> None:
+        super().__init__()
+        c = width
+        self.stem = nn.Sequential(
+            nn.Conv2d(1, c, 5, stride=2, padding=2), nn.BatchNorm2d(c), nn.ReLU()
+        )
+        self.e1, self.e2 = _block(c, 2 * c), _block(2 * c, 4 * c)
+        self.e3, self.e4 = _block(4 * c, 8 * c), _block(8 * c, 8 * c)
+        self.d3 = _block(16 * c, 6 * c)
+        self.d2, self.d1 = _block(10 * c, 4 * c), _block(6 * c, 2 * c)
+        self.out = nn.Conv2d(2 * c, 1, 1)
+        self.pool = nn.MaxPool2d(2)
+        self.up = nn.Upsample(scale_factor=2, mode="nearest")
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = self.stem(x)
+        a = self.e1(x)
+        b = self.e2(self.pool(a))
+        c = self.e3(self.pool(b))
+        d = self.e4(self.pool(c))
+        y = self.d3(torch.cat([self.up(d), c], 1))
+        y = self.d2(torch.cat([self.up(y), b], 1))
+        y = self.d1(torch.cat([self.up(y), a], 1))
+        return self.out(y)[:, 0]
+
+
+def heat_targets(tips: torch.Tensor, sigma_cells: float) -> torch.Tensor:
+    """Tips ``(N, 5, 2)`` in crop units (NaN: hidden) to targets ``(N, GRID, GRID)``.
+
+    Each cell holds the largest of the Gaussians centred on the visible tips.
+    """
+    u = (tips[..., 0] + 1) / 2 * GRID - 0.5
+    v = (tips[..., 1] + 1) / 2 * GRID - 0.5
+    cells = torch.arange(GRID).float()
+    d2 = (cells[None, None, None, :] - u[..., None, None]) ** 2
+    d2 = d2 + (cells[None, None, :, None] - v[..., None, None]) ** 2
+    return torch.nan_to_num(torch.exp(-d2 / (2 * sigma_cells**2)), nan=0.0).max(1).values
+
+
+def augment(x: torch.Tensor, tips: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Turn crops ``(N, 1, 64, 64)`` and their tips ``(N, 5, 2)`` by random angles and
+    mirror half of them left to right (in place on copies the caller owns)."""
+    n = len(x)
+    angle = torch.rand(n) * 2 * np.pi - np.pi
+    c, s = torch.cos(angle), torch.sin(angle)
+    theta = torch.zeros(n, 2, 3)
+    theta[:, 0, 0], theta[:, 0, 1], theta[:, 1, 0], theta[:, 1, 1] = c, -s, s, c
+    grid = nn.functional.affine_grid(theta, list(x.shape), align_corners=False)
+    # Missing depth is 1: shift so that samples from outside the crop are missing too.
+    x = nn.functional.grid_sample(x - 1, grid, mode="nearest", align_corners=False) + 1
+    px = c[:, None] * tips[..., 0] + s[:, None] * tips[..., 1]
+    py = -s[:, None] * tips[..., 0] + c[:, None] * tips[..., 1]
+    tips = torch.stack([px, py], -1)
+    flip = torch.rand(n) < 0.5
+    x[flip] = x[flip].flip(-1)
+    tips[flip, :, 0] = -tips[flip, :, 0]
+    return x, tips
+
+
+def _log(message: str, progress: bool) -> None:
+    if progress:
+        print(message, file=sys.stderr, flush=True)
+
+
+def train_stage(
+    initial: dict[str, torch.Tensor] | None,
+    images: NDArray[np.float16],
+    tips: NDArray[np.float32],
+    *,
+    epochs: int,
+    learning_rate: float,
+    config: HeatmapTrainingConfig,
+    progress: bool = False,
+) -> HeatNet:
+    """Train a :class:`HeatNet` for ``epochs`` on crops, with a one-cycle schedule.
+
+    Torch and the crop order are seeded with ``config.seed`` first, then a network is
+    initialised and, when ``initial`` (a state dict) is given, set to it: a stage is
+    reproducible on its own, from a fresh process or not. Up to 500 crops (a fifth at
+    most) are kept out of training to report the share of tip cells found and of
+    background cells above 0.5.
+    """
+    torch.manual_seed(config.seed)
+    rng = np.random.default_rng(config.seed)
+    net = HeatNet(config.width)
+    if initial is not None:
+        net.load_state_dict(initial)
+    if epochs == 0:
+        return net.eval()
+    x = torch.from_numpy(images.astype(np.float32))[:, None]
+    p = torch.from_numpy(tips.astype(np.float32))
+    order = rng.permutation(len(x))
+    n_check = min(500, len(x) // 5)
+    check, train = order[:n_check], order[n_check:]
+    if len(train) == 0:
+        raise ValueError("heatmap: too few crops to train on")
+    optimiser = torch.optim.AdamW(net.parameters(), 1e-3, weight_decay=1e-4)
+    batch = config.batch_size
+    schedule = torch.optim.lr_scheduler.OneCycleLR(
+        optimiser, learning_rate, total_steps=epochs * (len(train) // batch + 1)
+    )
+    weight = torch.tensor(config.positive_weight)
+    for epoch in range(epochs):
+        net.train()
+        start, total = time.perf_counter(), 0.0
+        shuffled = torch.from_numpy(rng.permutation(train))
+        for b in range(0, len(train), batch):
+            index = shuffled[b : b + batch]
+            xb, pb = augment(x[index].clone(), p[index].clone())
+            loss = nn.functional.binary_cross_entropy_with_logits(
+                net(xb), heat_targets(pb, config.sigma_cells), pos_weight=weight
+            )
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            schedule.step()
+            total += loss.item() * len(index)
+        net.eval()
+        if n_check:
+            with torch.no_grad():
+                probability = torch.sigmoid(net(x[check]))
+                target = heat_targets(p[check], config.sigma_cells)
+            found = (probability[target > 0.6] > 0.5).float().mean()
+            false = (probability[target < 0.05] > 0.5).float().mean()
+            _log(
+                f"heatmap epoch {epoch + 1}/{epochs}: loss {total / len(train):.4f}, "
+                f"tip cells found {found:.3f}, background cells above 0.5 {false:.4f} "
+                f"({time.perf_counter() - start:.0f} s)",
+                progress,
+            )
+    return net.eval()
+
+
+def train_network(
+    crops: Crops, config: HeatmapTrainingConfig, *, progress: bool = False
+) -> HeatNet:
+    """Both training stages of :class:`HeatNet` on ``crops`` (see the module docstring)."""
+    whole = crops.whole_hand
+    net = train_stage(
+        None,
+        crops.images[whole],
+        crops.tips[whole],
+        epochs=config.whole_hand_epochs,
+        learning_rate=config.whole_hand_learning_rate,
+        config=config,
+        progress=progress,
+    )
+    return train_stage(
+        net.state_dict(),
+        crops.images,
+        crops.tips,
+        epochs=config.all_epochs,
+        learning_rate=config.all_learning_rate,
+        config=config,
+        progress=progress,
+    )
+
+
+def export_onnx(net: HeatNet) -> NDArray[np.uint8]:
+    """The network as ONNX bytes: input ``crops`` (N, 1, 64, 64), output ``logits``."""
+    net.eval()
+    with tempfile.TemporaryDirectory() as folder, warnings.catch_warnings():
+        # The TorchScript exporter is deprecated in favour of one that needs onnxscript
+        # (one more dependency); it exports this plain convolutional network fine, which
+        # tests/builder/test_fingertip_heatmap_training.py checks against torch.
+        warnings.simplefilter("ignore", DeprecationWarning)
+        path = Path(folder) / "heatmap.onnx"
+        torch.onnx.export(
+            net,
+            (torch.zeros(1, 1, 64, 64),),
+            path,
+            input_names=["crops"],
+            output_names=["logits"],
+            dynamic_axes={"crops": {0: "n"}, "logits": {0: "n"}},
+            opset_version=17,
+            dynamo=False,
+        )
+        return np.frombuffer(path.read_bytes(), dtype=np.uint8).copy()
+
+
+# --- verifier -----------------------------------------------------------------------
+
+
+def label_heat_peaks(
+    xyz_m: NDArray[np.float64], tips_m: NDArray[np.float64], *, radius_m: float
+) -> NDArray[np.bool_]:
+    """Which peaks ``(K, 3)`` lie within ``radius_m`` of a visible tip (NaN rows: hidden).
+
+    Not one-to-one: two peaks near one tip are both true (the verifier judges each peak
+    on its own; the separation from the forest's detections removes doubles).
+    """
+    visible = tips_m[np.isfinite(tips_m).all(axis=1)]
+    if not len(xyz_m) or not len(visible):
+        return np.zeros(len(xyz_m), dtype=bool)
+    return np.linalg.norm(xyz_m[:, None] - visible[None], axis=2).min(axis=1) <= radius_m
+
+
+def collect_heat_samples(
+    images: Iterable[tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.float64]]],
+    forest: FingertipForest,
+    network: HeatmapNetwork,
+    *,
+    detector: DetectorConfig,
+    config: HeatmapTrainingConfig,
+) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """The heatmap's peaks on annotated frames, with their features and labels.
+
+    Parameters
+    ----------
+    images : iterable of (depth_m, intrinsics, tips_m)
+        As in :func:`builder.fingertip_verifier.collect_peak_samples`.
+    forest : FingertipForest
+        With its peak verifier (the features use its candidates and probabilities).
+    network : HeatmapNetwork
+    detector : DetectorConfig
+        Its ``c_thr``, voting and ``min_tip_probability`` make the forest's part.
+    config : HeatmapTrainingConfig
+
+    Returns
+    -------
+    features : (N, len(HEAT_PEAK_FEATURES)) float32
+    labels : (N,) bool
+    """
+    if forest.verifier is None:
+        raise ValueError("heatmap: the forest needs its peak verifier (a [verifier] table)")
+    features, labels = [], []
+    for depth_m, intrinsics, tips_m in images:
+        candidates, candidate_features = candidate_peaks(
+            depth_m, intrinsics, forest, config=detector
+        )
+        probability = verify_peaks(forest.verifier, candidate_features)
+        peaks, frame_features = frame_heat_peaks(
+            depth_m,
+            intrinsics,
+            network,
+            candidates.positions_m.astype(np.float64),
+            candidates.confidences.astype(np.float64),
+            probability.astype(np.float64),
+            min_value=config.min_value,
+            min_tip_probability=detector.min_tip_probability,
+        )
+        features.append(frame_features)
+        labels.append(label_heat_peaks(peaks.xyz_m, tips_m, radius_m=config.match_radius_m))
+    if not features:
+        return np.zeros((0, len(HEAT_PEAK_FEATURES)), np.float32), np.zeros(0, bool)
+    return np.concatenate(features), np.concatenate(labels)
+
+
+def fit_heat_verifier(
+    features: NDArray[np.float32], labels: NDArray[np.bool_], config: HeatmapTrainingConfig
+) -> HistGradientBoostingClassifier:
+    """Histogram gradient boosting on labelled heat peaks (no early stopping).
+
+    Raises
+    ------
+    ValueError
+        Unless there are both true and false peaks.
+    """
+    if labels.all() or not labels.any():
+        raise ValueError("heatmap: need both true and false peaks to train its verifier")
+    return HistGradientBoostingClassifier(
+        max_iter=config.verifier_iterations,
+        learning_rate=config.verifier_learning_rate,
+        max_leaf_nodes=config.verifier_leaf_nodes,
+        early_stopping=False,
+        random_state=config.seed,
+    ).fit(features, labels)
+
+
+def train_heatmap(
+    forest: FingertipForest,
+    data: FingertipDataConfig,
+    detector: DetectorConfig,
+    config: HeatmapTrainingConfig,
+    *,
+    progress: bool = False,
+) -> FingertipForest:
+    """Render crops, train and export the network, then fit the heatmap's verifier.
+
+    Parameters
+    ----------
+    forest : FingertipForest
+        The trained forest with its peak verifier (an existing heatmap is replaced).
+    data : FingertipDataConfig
+        The recipe's data settings; ``config.data`` replaces some.
+    detector : DetectorConfig
+        Detection settings (recorded in the model).
+    config : HeatmapTrainingConfig
+    progress : bool
+        Progress bars and per-epoch lines on standard error.
+
+    Returns
+    -------
+    FingertipForest
+        ``forest`` with the heatmap stage and its settings recorded.
+    """
+    from tqdm import tqdm
+
+    frames = config.heatmap_data(data)
+    crops = render_crops(frames, config.crop_seeds, config.crops_per_seed, progress=progress)
+    network_onnx = export_onnx(train_network(crops, config, progress=progress))
+    network = HeatmapNetwork(network_onnx, config.passes)
+    verifier_frames = replace(
+        frames,
+        seed=config.verifier_seed,
+        n_images=config.verifier_images,
+        half_resolution_fraction=0.0,
+    )
+    images = (
+        (example.depth_m, example.intrinsics, example.tips_m)
+        for example in tqdm(
+            generate_examples(verifier_frames),
+            total=verifier_frames.n_images,
+            desc="heatmap verifier",
+            unit="img",
+            disable=not progress,
+        )
+    )
+    features, labels = collect_heat_samples(
+        images, forest, network, detector=detector, config=config
+    )
+    table = pack_boosted_table(fit_heat_verifier(features, labels, config))
+    stage = HeatmapStage(
+        network_onnx=network_onnx,
+        passes=config.passes,
+        min_value=config.min_value,
+        **table,
+    )
+    settings = {
+        **forest.settings,
+        "heatmap": {
+            **asdict(config),
+            "n_crops": len(crops.images),
+            "n_whole_hand_crops": int(crops.whole_hand.sum()),
+            "n_peaks": int(labels.size),
+            "n_true_peaks": int(labels.sum()),
+        },
+        "detector": detector.as_dict(),
+    }
+    return replace(forest, heatmap=stage, settings_json=json.dumps(settings, sort_keys=True))
