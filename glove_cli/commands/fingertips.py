@@ -232,14 +232,14 @@ def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
         if not args.c_thr > 0:
             raise ValueError(f"--c-thr: expected a positive threshold, got {args.c_thr}")
         config = replace(config, c_thr=args.c_thr)
-    thresholds: dict[str, float] = {}
+    tip, heat = config.min_tip_probability, config.heatmap_min_probability
     if args.min_tip_probability is not None:
-        thresholds["min_tip_probability"] = args.min_tip_probability
-        if args.min_tip_probability == 0:  # the heatmap stage needs the verifier
-            thresholds["heatmap_min_probability"] = 0.0
+        tip = args.min_tip_probability
+        if tip == 0:  # the heatmap stage needs the verifier
+            heat = 0.0
     if args.heatmap_min_probability is not None:
-        thresholds["heatmap_min_probability"] = args.heatmap_min_probability
-    config = replace(config, **thresholds)
+        heat = args.heatmap_min_probability
+    config = replace(config, min_tip_probability=tip, heatmap_min_probability=heat)
     if _positive("--stride", args.stride) is not None:
         config = replace(config, stride=args.stride, pixel_spacing_m=0.0)
     return model, config
