@@ -16,7 +16,8 @@ at run time does. Four steps, all deterministic on a CPU:
    then ``all_epochs`` on all of them, each with a one-cycle learning rate schedule.
 3. **Export** (:func:`export_onnx`): ONNX bytes that onnxruntime runs at detection.
 4. **Verifier** (:func:`collect_heat_samples`, :func:`fit_heat_verifier`): on
-   ``verifier_images`` more frames the exported network's peaks are described by
+   ``verifier_images`` more frames per seed of ``verifier_seeds`` the exported
+   network's peaks are described by
    :func:`tracker.fingertips.heatmap.heat_peak_features` and labelled true when within
    ``match_radius_m`` of a visible fingertip; scikit-learn's histogram gradient boosting
    learns the label and is exported to a node table.
@@ -90,8 +91,10 @@ class HeatmapTrainingConfig:
         Averaged passes at detection (:func:`tracker.fingertips.heatmap.crop_views`).
     min_value : float
         Smallest mean heat of a peak given to the verifier.
-    verifier_seed, verifier_images : int
-        Seed and number of the verifier's frames (rendered at full resolution).
+    verifier_seeds : tuple of int
+        One run of ``verifier_images`` frames (at full resolution) per seed gives the
+        verifier's peaks.
+    verifier_images : int
     match_radius_m : float
         A peak within this distance of a visible fingertip is a true one.
     verifier_iterations, verifier_leaf_nodes : int
@@ -114,7 +117,7 @@ class HeatmapTrainingConfig:
     sigma_cells: float = 1.2
     passes: int = 8
     min_value: float = 0.3
-    verifier_seed: int = 11
+    verifier_seeds: tuple[int, ...] = (11, 12)
     verifier_images: int = 5000
     match_radius_m: float = 0.015
     verifier_iterations: int = 300
@@ -126,8 +129,8 @@ class HeatmapTrainingConfig:
         for name in ("crops_per_seed", "width", "batch_size", "verifier_images"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: expected at least 1, got {getattr(self, name)}")
-        if not self.crop_seeds:
-            raise ValueError("crop_seeds: expected at least one seed")
+        if not self.crop_seeds or not self.verifier_seeds:
+            raise ValueError("crop_seeds, verifier_seeds: expected at least one seed")
         if self.whole_hand_epochs < 0 or self.all_epochs < 0:
             raise ValueError("whole_hand_epochs, all_epochs: expected 0 or more")
         if self.whole_hand_epochs + self.all_epochs < 1:
@@ -204,7 +207,7 @@ def render_crops(
                 continue
             images.append(hand_crop(example.depth_m, camera, centre).astype(np.float16))
             tips.append(crop_units(example.tips_m, centre))
-            local = example.keypoints_m - centre
+            local = (example.keypoints_m - centre).astype(np.float32)
             whole.append(
                 bool(
                     (np.abs(local[:, :2]) < _WHOLE_HAND_XY_M).all()
@@ -513,6 +516,7 @@ def train_heatmap(
     detector: DetectorConfig,
     config: HeatmapTrainingConfig,
     *,
+    network_onnx: NDArray[np.uint8] | None = None,
     progress: bool = False,
 ) -> FingertipForest:
     """Render crops, train and export the network, then fit the heatmap's verifier.
@@ -526,6 +530,9 @@ def train_heatmap(
     detector : DetectorConfig
         Detection settings (recorded in the model).
     config : HeatmapTrainingConfig
+    network_onnx : (B,) uint8, optional
+        Use this network (e.g. another model's ``heatmap.network_onnx``) and fit only
+        the verifier: no crops, no network training.
     progress : bool
         Progress bars and per-epoch lines on standard error.
 
@@ -537,28 +544,35 @@ def train_heatmap(
     from tqdm import tqdm
 
     frames = config.heatmap_data(data)
-    crops = render_crops(frames, config.crop_seeds, config.crops_per_seed, progress=progress)
-    network_onnx = export_onnx(train_network(crops, config, progress=progress))
+    crop_counts: dict[str, Any] = {"network": "given"}
+    if network_onnx is None:
+        crops = render_crops(frames, config.crop_seeds, config.crops_per_seed, progress=progress)
+        network_onnx = export_onnx(train_network(crops, config, progress=progress))
+        crop_counts = {
+            "n_crops": len(crops.images),
+            "n_whole_hand_crops": int(crops.whole_hand.sum()),
+        }
     network = HeatmapNetwork(network_onnx, config.passes)
-    verifier_frames = replace(
-        frames,
-        seed=config.verifier_seed,
-        n_images=config.verifier_images,
-        half_resolution_fraction=0.0,
-    )
-    images = (
-        (example.depth_m, example.intrinsics, example.tips_m)
-        for example in tqdm(
-            generate_examples(verifier_frames),
-            total=verifier_frames.n_images,
-            desc="heatmap verifier",
-            unit="img",
-            disable=not progress,
+    parts = []
+    for seed in config.verifier_seeds:
+        verifier_frames = replace(
+            frames, seed=seed, n_images=config.verifier_images, half_resolution_fraction=0.0
         )
-    )
-    features, labels = collect_heat_samples(
-        images, forest, network, detector=detector, config=config
-    )
+        images = (
+            (example.depth_m, example.intrinsics, example.tips_m)
+            for example in tqdm(
+                generate_examples(verifier_frames),
+                total=verifier_frames.n_images,
+                desc=f"heatmap verifier (seed {seed})",
+                unit="img",
+                disable=not progress,
+            )
+        )
+        parts.append(
+            collect_heat_samples(images, forest, network, detector=detector, config=config)
+        )
+    features = np.concatenate([part[0] for part in parts])
+    labels = np.concatenate([part[1] for part in parts])
     table = pack_boosted_table(fit_heat_verifier(features, labels, config))
     stage = HeatmapStage(
         network_onnx=network_onnx,
@@ -570,8 +584,7 @@ def train_heatmap(
         **forest.settings,
         "heatmap": {
             **asdict(config),
-            "n_crops": len(crops.images),
-            "n_whole_hand_crops": int(crops.whole_hand.sum()),
+            **crop_counts,
             "n_peaks": int(labels.size),
             "n_true_peaks": int(labels.sum()),
         },

@@ -596,6 +596,7 @@ def train_from_recipe(
     progress: bool = False,
     forest: FingertipForest | None = None,
     keep_verifier: bool = False,
+    heatmap_network: NDArray[np.uint8] | None = None,
 ) -> FingertipForest:
     """Render the recipe's training images and train the forest, verifier and heatmap.
 
@@ -609,6 +610,9 @@ def train_from_recipe(
         stage) for it (the recipe's detector settings replace the recorded ones).
     keep_verifier : bool
         Also keep ``forest``'s peak verifier: train only the heatmap stage.
+    heatmap_network : (B,) uint8, optional
+        An ONNX heatmap network to use instead of training one (only the heatmap's
+        verifier is fitted; see :func:`builder.fingertip_heatmap.train_heatmap`).
 
     Returns
     -------
@@ -622,12 +626,12 @@ def train_from_recipe(
         PyTorch is not installed.
     """
     heatmap = _heatmap_config(recipe.heatmap)
+    if heatmap is None and (keep_verifier or heatmap_network is not None):
+        raise ValueError("the config has no [heatmap] table: nothing to train")
     if keep_verifier:
         if forest is None or forest.verifier is None:
             raise ValueError("keep_verifier: needs a given forest that has a peak verifier")
-        if heatmap is None:
-            raise ValueError("the config has no [heatmap] table: nothing to train")
-        return _train_heatmap(forest, recipe, heatmap, progress)
+        return _train_heatmap(forest, recipe, heatmap, heatmap_network, progress)
     from tqdm import tqdm
 
     from builder.fingertip_data import generate_examples
@@ -662,7 +666,7 @@ def train_from_recipe(
     )
     if heatmap is None:
         return forest
-    return _train_heatmap(forest, recipe, heatmap, progress)
+    return _train_heatmap(forest, recipe, heatmap, heatmap_network, progress)
 
 
 def _heatmap_config(table: Mapping[str, Any] | None) -> Any:
@@ -683,8 +687,14 @@ def _heatmap_config(table: Mapping[str, Any] | None) -> Any:
 
 
 def _train_heatmap(
-    forest: FingertipForest, recipe: FingertipRecipe, heatmap: Any, progress: bool
+    forest: FingertipForest,
+    recipe: FingertipRecipe,
+    heatmap: Any,
+    network: NDArray[np.uint8] | None,
+    progress: bool,
 ) -> FingertipForest:
     from builder.fingertip_heatmap import train_heatmap
 
-    return train_heatmap(forest, recipe.data, recipe.detector, heatmap, progress=progress)
+    return train_heatmap(
+        forest, recipe.data, recipe.detector, heatmap, network_onnx=network, progress=progress
+    )

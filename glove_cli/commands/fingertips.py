@@ -46,6 +46,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "and [heatmap]",
     )
     train.add_argument(
+        "--heatmap-network",
+        metavar="MODEL",
+        help="use the heatmap network of this model instead of training one (fits only "
+        "the [heatmap] verifier)",
+    )
+    train.add_argument(
         "--keep-verifier",
         action="store_true",
         help="with --forest: keep its peak verifier too and train only the [heatmap] stage",
@@ -179,9 +185,19 @@ def run_train(args: argparse.Namespace) -> int:
     if args.keep_verifier and not args.forest:
         raise ValueError("--keep-verifier: needs --forest MODEL")
     base = load_forest(args.forest) if args.forest else None
+    network = None
+    if args.heatmap_network:
+        stage = load_forest(args.heatmap_network).heatmap
+        if stage is None:
+            raise ValueError(f"--heatmap-network {args.heatmap_network}: no heatmap stage in it")
+        network = stage.network_onnx
     started = time.perf_counter()
     forest = train_from_recipe(
-        recipe, progress=sys.stderr.isatty(), forest=base, keep_verifier=args.keep_verifier
+        recipe,
+        progress=sys.stderr.isatty(),
+        forest=base,
+        keep_verifier=args.keep_verifier,
+        heatmap_network=network,
     )
     save_forest(forest, out)
     size_mb = out.stat().st_size / 1e6

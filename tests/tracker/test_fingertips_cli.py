@@ -263,7 +263,7 @@ def test_train_and_synth_on_a_tiny_config(tmp_path: Path) -> None:
     with open(config, "a") as stream:
         stream.write(
             "[heatmap]\ncrop_seeds = [3]\ncrops_per_seed = 8\nwidth = 2\nbatch_size = 4\n"
-            "whole_hand_epochs = 1\nall_epochs = 1\nverifier_images = 12\n"
+            "whole_hand_epochs = 1\nall_epochs = 1\nverifier_seeds = [4]\nverifier_images = 12\n"
             "verifier_iterations = 5\nmin_value = 0.0\n[heatmap.data]\ncurl_fraction = 0.5\n"
         )
     config.write_text(
@@ -291,3 +291,23 @@ def test_train_and_synth_on_a_tiny_config(tmp_path: Path) -> None:
     result = run_glove("fingertips", "eval", str(folder), "--model", str(staged), "--json")
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["detector"]["heatmap_min_probability"] == 0.5
+    # The same verifier again for the same network, without training it.
+    again = tmp_path / "again.npz"
+    result = run_glove(
+        "fingertips",
+        "train",
+        str(config),
+        "--forest",
+        str(staged),
+        "--keep-verifier",
+        "--heatmap-network",
+        str(staged),
+        "--out",
+        str(again),
+    )
+    assert result.returncode == 0, result.stderr
+    repeated = load_forest(again).heatmap
+    assert repeated is not None
+    np.testing.assert_array_equal(repeated.network_onnx, heatmap.network_onnx)
+    np.testing.assert_array_equal(repeated.node_value, heatmap.node_value)
+    assert load_forest(again).settings["heatmap"]["network"] == "given"

@@ -128,8 +128,9 @@ def hand_crop(
     h, w = depth_m.shape
     offset = ((np.arange(CROP_PX) + 0.5) / CROP_PX - 0.5) * 2 * CROP_HALF_M
     z = centre[2]
-    u = np.clip(np.rint(fx * (centre[0] + offset) / z + cx), 0, w - 1).astype(np.intp)
-    v = np.clip(np.rint(fy * (centre[1] + offset) / z + cy), 0, h - 1).astype(np.intp)
+    # Written as the network's training crops were, so that they round alike.
+    u = np.clip(np.rint(fx * centre[0] / z + cx + fx * offset / z), 0, w - 1).astype(np.intp)
+    v = np.clip(np.rint(fy * centre[1] / z + cy + fy * offset / z), 0, h - 1).astype(np.intp)
     d = depth_m[v[:, None], u[None, :]]
     relative = np.where(d > 0, (d - z) / CROP_HALF_M, 1.0)
     return np.clip(relative, -1.0, 1.0).astype(np.float16).astype(np.float32)
