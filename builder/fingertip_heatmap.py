@@ -181,9 +181,10 @@ class Crops:
 
 
 def crop_units(points_m: NDArray[np.float64], centre: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Positions ``(..., 2)`` of 3D points in the crop's [-1, 1] frame, through its pinhole."""
-    rays = points_m[..., :2] / points_m[..., 2:3] - centre[:2] / centre[2]
-    return rays * centre[2] / CROP_HALF_M
+    """Positions ``(..., K, 2)`` of 3D points ``(..., K, 3)`` in the [-1, 1] frame of the
+    crops around ``centre`` ``(..., 3)``, through their pinhole."""
+    rays = points_m[..., :2] / points_m[..., 2:3] - centre[..., None, :2] / centre[..., None, 2:3]
+    return rays * centre[..., None, 2:3] / CROP_HALF_M
 
 
 def render_crops(

@@ -1,9 +1,13 @@
 """Prototype: a whole-hand fingertip heatmap network next to the Hough forest (issue 7).
 
-Not part of the package, and imported neither by it nor by the tests. It needs PyTorch
-on top of the project (``pip install torch``; the CPU wheel is enough). The ninth
-session's figures in ``docs/fingertips_experiments.md`` were made with this
-code. Run from the repository root, with the project's environment:
+The stage now ships in the package (``tracker/fingertips/heatmap.py``, trained by
+``builder/fingertip_heatmap.py``, whose network, targets, augmentation and crops this
+script uses); the script stays as the record of the ninth session's experiments, whose
+figures in ``docs/fingertips_experiments.md`` it made, and its ``crops`` and ``train``
+steps made the shipped network (``hm4.pt``, exported with
+``builder.fingertip_heatmap.export_onnx``). Imported neither by the package nor by the
+tests; it needs the ``train`` extra. Run from the repository root, with the project's
+environment:
 
     # 35,000 hand crops rendered like configs/fingertips/curled.toml (curl_fraction 0.3)
     for s in 101 102 103 104 105; do
@@ -79,130 +83,29 @@ from torch import nn
 from tqdm import tqdm
 
 from builder.fingertip_data import data_config_from_dict, generate_examples
+from builder.fingertip_heatmap import HeatNet, augment, crop_units, heat_targets
 from tracker.fingertips import Detection, detect_fingertips, load_forest, model_detector_config
 from tracker.fingertips.detect import candidate_peaks, detection_points
 from tracker.fingertips.evaluation import fingertip_metrics, read_annotated_depth
-from tracker.fingertips.pose_guess import hand_points_from_depth
+from tracker.fingertips.heatmap import CROP_HALF_M as HALF_M
+from tracker.fingertips.heatmap import GRID, hand_centre, hand_crop
 from tracker.fingertips.verify import verify_peaks
 
-CROP = 64
-"""Crop side, pixels."""
-HALF_M = 0.15
-"""Half the side of the cube around the hand centre, metres."""
-GRID = 32
-"""Heatmap side, cells."""
 SIGMA_CELLS = 1.2
+"""Width of the training targets' Gaussians, heatmap cells."""
 REAL = "../shared/data/real_depth/hmodel_andrii"
 
 
-# --- crop geometry -----------------------------------------------------------------
-
-
-def hand_centre(depth_m: np.ndarray, intrinsics: np.ndarray) -> np.ndarray | None:
-    """Centre (3,) of the nearest object's densest 12 cm, metres; None without one."""
-    points = hand_points_from_depth(depth_m, intrinsics, max_points=1500)
-    if len(points) < 20:
-        return None
-    centre = points.mean(0)
-    for _ in range(3):
-        near = points[np.linalg.norm(points - centre, axis=1) < 0.12]
-        if len(near) < 20:
-            break
-        centre = near.mean(0)
-    return centre
-
-
 def crop(depth_m: np.ndarray, intrinsics: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """(CROP, CROP) float16 depth relative to ``centre`` over HALF_M, clipped to [-1, 1]."""
-    fx, fy, cx, cy = (float(a) for a in intrinsics)
-    h, w = depth_m.shape
-    offset = ((np.arange(CROP) + 0.5) / CROP - 0.5) * 2 * HALF_M
-    u = np.clip(np.rint(fx * centre[0] / centre[2] + cx + fx * offset / centre[2]), 0, w - 1)
-    v = np.clip(np.rint(fy * centre[1] / centre[2] + cy + fy * offset / centre[2]), 0, h - 1)
-    d = depth_m[v.astype(int)[:, None], u.astype(int)[None, :]]
-    relative = np.where(d > 0, (d - centre[2]) / HALF_M, 1.0)
-    return np.clip(relative, -1.0, 1.0).astype(np.float16)
-
-
-def crop_units(points_m: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """(..., 2) positions of 3D points in the crop's [-1, 1] frame (through its pinhole)."""
-    rays = points_m[..., :2] / points_m[..., 2:3] - centre[..., None, :2] / centre[..., None, 2:3]
-    return rays * centre[..., None, 2:3] / HALF_M
-
-
-# --- network -----------------------------------------------------------------------
-
-
-def _block(n_in: int, n_out: int) -> nn.Sequential:
-    return nn.Sequential(
-        nn.Conv2d(n_in, n_out, 3, padding=1),
-        nn.BatchNorm2d(n_out),
-        nn.ReLU(),
-        nn.Conv2d(n_out, n_out, 3, padding=1),
-        nn.BatchNorm2d(n_out),
-        nn.ReLU(),
-    )
-
-
-class HeatNet(nn.Module):
-    """(N, 1, 64, 64) hand crops -> (N, 32, 32) logits of "a visible fingertip is here"."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.stem = nn.Sequential(
-            nn.Conv2d(1, 16, 5, stride=2, padding=2), nn.BatchNorm2d(16), nn.ReLU()
-        )
-        self.e1, self.e2 = _block(16, 32), _block(32, 64)
-        self.e3, self.e4 = _block(64, 128), _block(128, 128)
-        self.d3, self.d2, self.d1 = _block(256, 96), _block(96 + 64, 64), _block(64 + 32, 32)
-        self.out = nn.Conv2d(32, 1, 1)
-        self.pool = nn.MaxPool2d(2)
-        self.up = nn.Upsample(scale_factor=2, mode="nearest")
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = self.stem(x)
-        a = self.e1(x)
-        b = self.e2(self.pool(a))
-        c = self.e3(self.pool(b))
-        d = self.e4(self.pool(c))
-        y = self.d3(torch.cat([self.up(d), c], 1))
-        y = self.d2(torch.cat([self.up(y), b], 1))
-        y = self.d1(torch.cat([self.up(y), a], 1))
-        return self.out(y)[:, 0]
+    """The package's hand crop, stored as float16."""
+    return hand_crop(depth_m, np.asarray(intrinsics, float), centre).astype(np.float16)
 
 
 def load_net(path: str) -> HeatNet:
-    net = HeatNet()
-    net.load_state_dict(torch.load(path, weights_only=True))
+    state = torch.load(path, weights_only=True)
+    net = HeatNet(width=state["stem.0.weight"].shape[0])
+    net.load_state_dict(state)
     return net.eval()
-
-
-def heat_targets(tips: torch.Tensor) -> torch.Tensor:
-    """(N, 5, 2) tips in crop units (NaN: not visible) -> (N, GRID, GRID) max of Gaussians."""
-    u = (tips[..., 0] + 1) / 2 * GRID - 0.5
-    v = (tips[..., 1] + 1) / 2 * GRID - 0.5
-    cells = torch.arange(GRID).float()
-    d2 = (cells[None, None, None, :] - u[..., None, None]) ** 2
-    d2 = d2 + (cells[None, None, :, None] - v[..., None, None]) ** 2
-    return torch.nan_to_num(torch.exp(-d2 / (2 * SIGMA_CELLS**2)), nan=0.0).max(1).values
-
-
-def augment(x: torch.Tensor, tips: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Random in-plane rotation and left-right flip of crops (N, 1, 64, 64) and tips."""
-    n = len(x)
-    angle = torch.rand(n) * 2 * np.pi - np.pi
-    c, s = torch.cos(angle), torch.sin(angle)
-    theta = torch.zeros(n, 2, 3)
-    theta[:, 0, 0], theta[:, 0, 1], theta[:, 1, 0], theta[:, 1, 1] = c, -s, s, c
-    grid = nn.functional.affine_grid(theta, list(x.shape), align_corners=False)
-    x = nn.functional.grid_sample(x - 1, grid, mode="nearest", align_corners=False) + 1
-    px = c[:, None] * tips[..., 0] + s[:, None] * tips[..., 1]
-    py = -s[:, None] * tips[..., 0] + c[:, None] * tips[..., 1]
-    tips = torch.stack([px, py], -1)
-    flip = torch.rand(n) < 0.5
-    x[flip] = x[flip].flip(-1)
-    tips[flip, :, 0] = -tips[flip, :, 0]
-    return x, tips
 
 
 def tta_heat(net: HeatNet, crop_image: np.ndarray, passes: int = 8) -> np.ndarray:
@@ -424,7 +327,7 @@ def cmd_train(args: argparse.Namespace) -> None:
     p = torch.from_numpy(np.concatenate(tips).astype(np.float32))
     order = rng.permutation(len(x))
     check, train = order[: min(500, len(x) // 5)], order[min(500, len(x) // 5) :]
-    net = HeatNet()
+    net = HeatNet(args.width)
     if args.init:
         net.load_state_dict(torch.load(args.init, weights_only=True))
     optimiser = torch.optim.AdamW(net.parameters(), 1e-3, weight_decay=1e-4)
@@ -439,7 +342,7 @@ def cmd_train(args: argparse.Namespace) -> None:
             batch = shuffled[b : b + 64]
             xb, pb = augment(x[batch].clone(), p[batch].clone())
             loss = nn.functional.binary_cross_entropy_with_logits(
-                net(xb), heat_targets(pb), pos_weight=torch.tensor(20.0)
+                net(xb), heat_targets(pb, SIGMA_CELLS), pos_weight=torch.tensor(20.0)
             )
             optimiser.zero_grad()
             loss.backward()
@@ -448,7 +351,7 @@ def cmd_train(args: argparse.Namespace) -> None:
             total += loss.item() * len(batch)
         net.eval()
         with torch.no_grad():
-            prob, target = torch.sigmoid(net(x[check])), heat_targets(p[check])
+            prob, target = torch.sigmoid(net(x[check])), heat_targets(p[check], SIGMA_CELLS)
         found = (prob[target > 0.6] > 0.5).float().mean()
         false = (prob[target < 0.05] > 0.5).float().mean()
         print(
@@ -593,6 +496,7 @@ def main() -> None:
     p.add_argument("--epochs", type=int, default=18)
     p.add_argument("--lr", type=float, default=2e-3, help="peak of the one-cycle schedule")
     p.add_argument("--init", help="start from these weights")
+    p.add_argument("--width", type=int, default=16, help="channels of the stem")
     p.add_argument("--whole-hands", action="store_true", help="only crops holding every keypoint")
     p = sub.add_parser("eval", help="the network alone (one pass) on annotated folders")
     p.add_argument("net")
