@@ -1,4 +1,4 @@
-"""The shipped model: loads without scikit-learn and finds the tips of a rendered hand."""
+"""The shipped model: loads without scikit-learn or PyTorch, finds a rendered hand's tips."""
 
 import subprocess
 import sys
@@ -12,23 +12,26 @@ from tracker.fingertips.forest import DEFAULT_MODEL_PATH
 
 def test_shipped_model_loads_and_is_small() -> None:
     assert DEFAULT_MODEL_PATH.is_file()
-    assert DEFAULT_MODEL_PATH.stat().st_size < 8e6
+    assert DEFAULT_MODEL_PATH.stat().st_size < 13e6
     model = load_forest()
     config = model_detector_config(model)
     assert model.n_trees >= 1 and config.c_thr > 0 and np.isfinite(config.depth_band_m)
     assert "data" in model.settings and model.version
     assert model.verifier is not None and config.min_tip_probability > 0
+    assert model.heatmap is not None and config.heatmap_min_probability > 0
 
 
-def test_shipped_model_needs_no_scikit_learn() -> None:
+def test_shipped_model_needs_no_scikit_learn_or_torch() -> None:
     code = (
         "import sys, numpy as np\n"
-        "sys.modules['sklearn'] = None\n"  # importing scikit-learn now fails
-        "from tracker.fingertips import detect_fingertips, load_forest\n"
+        "sys.modules['sklearn'] = sys.modules['torch'] = None\n"  # importing them now fails
+        "from tracker.fingertips import detect_fingertips, load_forest, model_detector_config\n"
         "model = load_forest()\n"
         "depth = np.zeros((48, 64), np.float32); depth[10:40, 20:40] = 0.5\n"
-        "detect_fingertips(depth, (60.0, 60.0, 31.5, 23.5), model)\n"
+        "config = model_detector_config(model)\n"
+        "detect_fingertips(depth, (60.0, 60.0, 31.5, 23.5), model, config=config)\n"
         "assert 'pyrender' not in sys.modules and 'builder' not in sys.modules\n"
+        "assert 'onnxruntime' in sys.modules\n"  # the heatmap stage ran
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
