@@ -208,3 +208,24 @@ def test_save_writes_the_given_path_atomically(tmp_path: Path, monkeypatch) -> N
     # The interrupted save left neither a temporary file nor a damaged model.
     assert sorted(p.name for p in tmp_path.iterdir()) == ["forest.npz", "model.bin"]
     np.testing.assert_array_equal(load_forest(target).node_feature, first.node_feature)
+
+
+def test_compiled_matrix_descent_reaches_the_reference_leaves() -> None:
+    from tracker.fingertips.trees import descend, descend_matrix
+
+    rng = np.random.default_rng(3)
+    features = rng.normal(size=(400, 12)).astype(np.float32)
+    samples = TrainingSamples(
+        features, features[:, 0] + features[:, 1] ** 2 > 0.5, np.zeros((400, 3), "f4")
+    )
+    config = FingertipTrainingConfig(n_trees=4, max_depth=10, max_features=6)
+    forest = export_forest(
+        fit_classifier(samples, config=config), samples, np.zeros((12, 2, 2), "f4"), config=config
+    )
+    query = rng.normal(size=(300, 12)).astype(np.float32)
+    split = np.flatnonzero(forest.node_feature >= 0)[:50]  # values on a threshold: left
+    query[np.arange(50), forest.node_feature[split]] = forest.node_threshold[split]
+    np.testing.assert_array_equal(
+        descend_matrix(forest, query),
+        descend(forest, len(query), lambda rows, feature: query[rows, feature]),
+    )

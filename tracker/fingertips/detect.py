@@ -24,7 +24,12 @@ from tracker.fingertips.features import (
     stride_for_spacing,
 )
 from tracker.fingertips.forest import FingertipForest, apply_probe_image, predict_leaves
-from tracker.fingertips.heatmap import HeatmapStage, heatmap_peaks
+from tracker.fingertips.heatmap import (
+    HAND_BAND_M,
+    HAND_DEPTH_RANGE_M,
+    HeatmapStage,
+    heatmap_peaks,
+)
 from tracker.fingertips.verify import peak_features, verify_peaks
 from tracker.fingertips.voting import (
     DEFAULT_VOTING,
@@ -236,9 +241,10 @@ def _frame_votes(
     camera: NDArray[np.float64],
     model: FingertipForest,
     config: DetectorConfig,
-) -> tuple[Votes, NDArray[np.float32]]:
-    """The votes of :func:`fingertip_votes` and the probe image of the hand depth they
-    come from (:func:`~tracker.fingertips.features.probe_image`, made once per frame)."""
+) -> tuple[Votes, NDArray[np.float32], NDArray[np.float32]]:
+    """The votes of :func:`fingertip_votes`, the probe image of the hand depth they come
+    from (:func:`~tracker.fingertips.features.probe_image`, made once per frame) and
+    that hand depth (:func:`hand_depth`)."""
     depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
     masked = hand_depth(depth, model, depth_band_m=config.depth_band_m)
     stride = config.stride
@@ -255,7 +261,17 @@ def _frame_votes(
     votes = cast_votes(
         points, prediction.probability, prediction.offset_m, area, config=config.voting
     )
-    return votes, probes
+    return votes, probes, masked
+
+
+def _candidates(
+    depth_m: ArrayLike, camera: NDArray[np.float64], model: FingertipForest, config: DetectorConfig
+) -> tuple[Peaks, NDArray[np.float32], NDArray[np.float32]]:
+    """:func:`candidate_peaks` and the hand depth they come from."""
+    votes, probes, masked = _frame_votes(depth_m, camera, model, config)
+    peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
+    features = peak_features(peaks, votes, probes, camera, bandwidth_m=config.voting.bandwidth_m)
+    return peaks, features, masked
 
 
 def candidate_peaks(
@@ -283,11 +299,7 @@ def candidate_peaks(
     features : (K, len(PEAK_FEATURES)) float32
         :func:`tracker.fingertips.verify.peak_features` of the peaks.
     """
-    camera = intrinsics_array(intrinsics)
-    votes, probes = _frame_votes(depth_m, camera, model, config)
-    peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
-    features = peak_features(peaks, votes, probes, camera, bandwidth_m=config.voting.bandwidth_m)
-    return peaks, features
+    return _candidates(depth_m, intrinsics_array(intrinsics), model, config)[:2]
 
 
 def detect_fingertips(
@@ -343,18 +355,29 @@ def detect_fingertips(
     candidates = Peaks(np.zeros((0, 3), np.float32), np.zeros(0, np.float32))
     candidate_probability = np.zeros(0, np.float32)
     if model.verifier is None:
-        votes = _frame_votes(depth, camera, model, config)[0]
+        votes, _, masked = _frame_votes(depth, camera, model, config)
         peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
     else:
-        candidates, features = candidate_peaks(depth, camera, model, config=config)
+        candidates, features, masked = _candidates(depth, camera, model, config)
         candidate_probability = verify_peaks(model.verifier, features)
         keep = candidate_probability >= config.min_tip_probability
         peaks = Peaks(candidates.positions_m[keep], candidates.confidences[keep])
         tip_probability = candidate_probability[keep]
     detections = _forest_detections(peaks, tip_probability, camera)
     if config.heatmap_min_probability > 0 and model.heatmap is not None:
+        # The forest's hand depth serves the crop centre when it was cut alike.
+        same_cut = np.allclose(model.depth_range_m, HAND_DEPTH_RANGE_M, rtol=1e-6) and (
+            config.depth_band_m == HAND_BAND_M
+        )
         detections += _heatmap_detections(
-            depth, camera, model.heatmap, config, candidates, candidate_probability, detections
+            depth,
+            camera,
+            model.heatmap,
+            config,
+            candidates,
+            candidate_probability,
+            detections,
+            hand_depth_m=masked if same_cut else None,
         )
     if model_tips_m is None:
         return detections
@@ -396,6 +419,8 @@ def _heatmap_detections(
     candidates: Peaks,
     candidate_probability: NDArray[np.float32],
     forest_detections: tuple[Detection, ...],
+    *,
+    hand_depth_m: NDArray[np.float32] | None,
 ) -> tuple[Detection, ...]:
     """The heatmap's accepted peaks, most probable first, each farther than the voting's
     ``min_separation_m`` from every forest detection and every more probable one."""
@@ -407,6 +432,7 @@ def _heatmap_detections(
         candidates.confidences.astype(np.float64),
         candidate_probability.astype(np.float64),
         min_tip_probability=config.min_tip_probability,
+        hand_depth_m=hand_depth_m,
     )
     separation = config.voting.min_separation_m
     taken = list(detection_points(forest_detections))

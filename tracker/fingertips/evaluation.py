@@ -395,9 +395,13 @@ def run_detector(
     detections : list of tuple of Detection
         One tuple per frame.
     ms_per_frame : float
-        Mean wall-clock detection time, milliseconds.
+        Mean wall-clock detection time, milliseconds, after one untimed run on the
+        first frame (which loads the heatmap network into onnxruntime and the compiled
+        forest code).
     """
     frames: Iterable[NDArray[np.float32]] = data.depth_m
+    if len(data.depth_m):
+        detect_fingertips(data.depth_m[0], data.intrinsics, model, config=config)
     if progress is not None:
         frames = progress(frames)
     detections = []

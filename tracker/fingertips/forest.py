@@ -2,8 +2,8 @@
 
 All trees are packed into one node table. On depth images every (pixel, tree) pair
 walks down to its leaf in a compiled loop that computes each split's feature on the
-way (:mod:`tracker.fingertips._forest_kernels`); on precomputed features every pair
-descends at once, level by level (:func:`tracker.fingertips.trees.descend`).
+way (:mod:`tracker.fingertips._tree_kernels`), and likewise on precomputed features
+(:func:`tracker.fingertips.trees.descend_matrix`).
 
 File format (``.npz``, read with ``allow_pickle=False``):
 
@@ -64,14 +64,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from glovedb._validate import as_array
-from tracker.fingertips._forest_kernels import descend_depth_forest
+from tracker.fingertips._tree_kernels import descend_depth_forest
 from tracker.fingertips.features import (
     intrinsics_array,
     probe_image,
     read_probes,
 )
 from tracker.fingertips.heatmap import HEAT_PEAK_FEATURES, HeatmapStage
-from tracker.fingertips.trees import FeatureLookup, check_tree_table, descend
+from tracker.fingertips.trees import FeatureLookup, check_tree_table, descend, descend_matrix
 from tracker.fingertips.verify import PEAK_FEATURES, PeakVerifier
 
 FORMAT_NAME = "glove-fingertip-forest"
@@ -359,7 +359,7 @@ def apply_features(forest: FingertipForest, features: ArrayLike) -> NDArray[np.i
         each tree (what scikit-learn's ``apply`` returns).
     """
     values = as_array("features", features, (None, forest.n_features), np.float32, kind="fiu")
-    return descend(forest, values.shape[0], lambda rows, feature: values[rows, feature])
+    return descend_matrix(forest, values)
 
 
 def apply_depth(
@@ -398,7 +398,7 @@ def apply_probe_image(
 
     For callers that probe the same image again (the peak verifier), so that it is
     made once per frame. The descent is compiled
-    (:func:`tracker.fingertips._forest_kernels.descend_depth_forest`); it gives the
+    (:func:`tracker.fingertips._tree_kernels.descend_depth_forest`); it gives the
     leaves of the level-by-level NumPy descent over
     :func:`~tracker.fingertips.features.paired_feature_values`, bit for bit.
     """

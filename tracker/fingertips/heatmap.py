@@ -39,8 +39,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from glovedb._validate import as_array
 from tracker.fingertips.features import intrinsics_array
-from tracker.fingertips.pose_guess import hand_points_from_depth
-from tracker.fingertips.trees import check_tree_table, descend
+from tracker.fingertips.pose_guess import hand_points_from_depth, masked_points
+from tracker.fingertips.trees import check_tree_table, descend_matrix
 
 CROP_PX = 64
 """Side of the hand crop, pixels."""
@@ -51,6 +51,10 @@ GRID = 32
 PASSES = (1, 2, 4, 8)
 """Supported numbers of averaged passes: the crop; and its mirror; and those turned by a
 quarter; and by all four quarter turns (:func:`crop_views`)."""
+HAND_DEPTH_RANGE_M = (0.15, 2.0)
+"""Working depth range (metres) of the crop centre's hand points, as in training."""
+HAND_BAND_M = 0.2
+"""Depth band (metres) behind the nearest surface of the crop centre's hand points."""
 _CENTRE_RADIUS_M = 0.12
 _MIN_POINTS = 20
 _LIFT_RADIUS_M = 0.006
@@ -87,7 +91,12 @@ HEAT_PEAK_FEATURES: tuple[str, ...] = (
 # --- crop ---------------------------------------------------------------------------
 
 
-def hand_centre(depth_m: ArrayLike, intrinsics: ArrayLike) -> NDArray[np.float64] | None:
+def hand_centre(
+    depth_m: ArrayLike,
+    intrinsics: ArrayLike,
+    *,
+    hand_depth_m: NDArray[np.float32] | None = None,
+) -> NDArray[np.float64] | None:
     """Centre of the nearest object's densest 12 cm.
 
     Parameters
@@ -96,13 +105,26 @@ def hand_centre(depth_m: ArrayLike, intrinsics: ArrayLike) -> NDArray[np.float64
         Depth in metres, 0 where missing.
     intrinsics : (4,) float
         ``(fx, fy, cx, cy)`` in pixels.
+    hand_depth_m : (H, W) float32, optional
+        ``depth_m`` already restricted to :data:`HAND_DEPTH_RANGE_M` and to
+        :data:`HAND_BAND_M` behind the nearest surface (0 elsewhere), when the caller
+        has it (the forest's hand depth, with these settings): saves computing it again.
 
     Returns
     -------
     (3,) float64 or None
         Camera frame, metres; None when fewer than 20 points are in view.
     """
-    points = hand_points_from_depth(depth_m, intrinsics, max_points=1500)
+    if hand_depth_m is None:
+        points = hand_points_from_depth(
+            depth_m,
+            intrinsics,
+            depth_range_m=HAND_DEPTH_RANGE_M,
+            band_m=HAND_BAND_M,
+            max_points=1500,
+        )
+    else:
+        points = masked_points(hand_depth_m, intrinsics, max_points=1500)
     if len(points) < _MIN_POINTS:
         return None
     centre = points.mean(axis=0)
@@ -454,7 +476,7 @@ def boosted_probability(stage: HeatmapStage, features: ArrayLike) -> NDArray[np.
         From :func:`heat_peak_features`.
     """
     values = as_array("features", features, (None, len(HEAT_PEAK_FEATURES)), np.float32)
-    leaves = descend(stage, values.shape[0], lambda rows, feature: values[rows, feature])
+    leaves = descend_matrix(stage, values)
     log_odds = stage.baseline + stage.node_value[leaves].astype(np.float64).sum(axis=1)
     return (1.0 / (1.0 + np.exp(-log_odds))).astype(np.float32)
 
@@ -469,6 +491,7 @@ def frame_heat_peaks(
     *,
     min_value: float,
     min_tip_probability: float,
+    hand_depth_m: NDArray[np.float32] | None = None,
 ) -> tuple[HeatPeaks, NDArray[np.float32]]:
     """The heatmap's peaks in one frame and their verifier features.
 
@@ -484,6 +507,8 @@ def frame_heat_peaks(
         See :func:`heat_peak_features`.
     min_value : float
         See :func:`heat_peaks`.
+    hand_depth_m : (H, W) float32, optional
+        See :func:`hand_centre`.
 
     Returns
     -------
@@ -492,7 +517,7 @@ def frame_heat_peaks(
     features : (K, len(HEAT_PEAK_FEATURES)) float32
     """
     camera = intrinsics_array(intrinsics)
-    centre = hand_centre(depth_m, camera)
+    centre = hand_centre(depth_m, camera, hand_depth_m=hand_depth_m)
     if centre is None:
         none = HeatPeaks(
             np.zeros((0, 2), np.int64), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0)
@@ -523,6 +548,7 @@ def heatmap_peaks(
     candidate_probabilities: NDArray[np.float64],
     *,
     min_tip_probability: float,
+    hand_depth_m: NDArray[np.float32] | None = None,
 ) -> tuple[HeatPeaks, NDArray[np.float32]]:
     """The heatmap's peaks in one frame and their verifier probabilities ``(K,)``.
 
@@ -538,5 +564,6 @@ def heatmap_peaks(
         candidate_probabilities,
         min_value=stage.min_value,
         min_tip_probability=min_tip_probability,
+        hand_depth_m=hand_depth_m,
     )
     return peaks, boosted_probability(stage, features)

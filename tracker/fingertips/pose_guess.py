@@ -120,13 +120,21 @@ def hand_points_from_depth(
     (N, 3) float64
         Camera frame, metres.
     """
-    camera = intrinsics_array(intrinsics)
     masked = nearest_band(
         mask_depth_range(depth_m, near_m=depth_range_m[0], far_m=depth_range_m[1]), band_m=band_m
     )
-    stride = stride_for_budget(masked, max(max_points, 1))
-    pixels = foreground_pixels(masked, stride=stride)
-    return backproject(pixels, masked[pixels[:, 1], pixels[:, 0]], camera).astype(np.float64)
+    return masked_points(masked, intrinsics, max_points=max_points)
+
+
+def masked_points(
+    hand_depth_m: NDArray[np.float32], intrinsics: ArrayLike, *, max_points: int = 600
+) -> NDArray[np.float64]:
+    """The 3D points ``(N, 3)`` (metres) of an already segmented hand depth (0 elsewhere),
+    on the pixel grid whose stride leaves at most about ``max_points``."""
+    stride = stride_for_budget(hand_depth_m, max(max_points, 1))
+    pixels = foreground_pixels(hand_depth_m, stride=stride)
+    z = hand_depth_m[pixels[:, 1], pixels[:, 0]]
+    return backproject(pixels, z, intrinsics_array(intrinsics)).astype(np.float64)
 
 
 def _align_with_points(

@@ -1,11 +1,13 @@
-"""Decision trees packed into one node table, descended all at once.
+"""Decision trees packed into one node table, and their descent.
 
-Both the fingertip forest (:mod:`tracker.fingertips.forest`) and the peak verifier
-(:mod:`tracker.fingertips.verify`) store their trees this way: node ``i`` tests
+The fingertip forest (:mod:`tracker.fingertips.forest`), the peak verifier
+(:mod:`tracker.fingertips.verify`) and the heatmap's verifier
+(:mod:`tracker.fingertips.heatmap`) store their trees this way: node ``i`` tests
 feature ``node_feature[i]`` (-1 at a leaf) against ``node_threshold[i]`` and continues
 at ``node_left[i]`` (value <= threshold) or ``node_right[i]``; tree ``t`` starts at
-``tree_roots[t]``. Every (sample, tree) pair descends at once, level by level; there
-is no Python loop over samples or trees.
+``tree_roots[t]``. :func:`descend` moves every (sample, tree) pair at once, level by
+level, asking for features on demand (the reference); :func:`descend_matrix` walks
+each pair down in a compiled loop over a feature matrix.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from glovedb._validate import as_array
+from tracker.fingertips._tree_kernels import descend_rows
 
 FeatureLookup = Callable[[NDArray[np.intp], NDArray[np.int32]], NDArray[np.float32]]
 """``(rows, feature_index) -> values``: feature ``feature_index[k]`` of row ``rows[k]``."""
@@ -57,6 +60,22 @@ def check_tree_table(table: TreeTable, n_features: int) -> None:
             raise ValueError(f"{name}: each split's child must be a later node index")
     if np.any(table.node_feature >= n_features):
         raise ValueError("node_feature: index beyond the number of features")
+
+
+def descend_matrix(table: TreeTable, values: NDArray[np.float32]) -> NDArray[np.int32]:
+    """Leaves ``(N, T)`` of the rows of a float32 feature matrix ``(N, F)`` in every tree.
+
+    A compiled loop (:func:`tracker.fingertips._tree_kernels.descend_rows`) that reaches
+    the leaves :func:`descend` does, one (row, tree) pair at a time.
+    """
+    return descend_rows(
+        np.ascontiguousarray(values, dtype=np.float32),
+        table.tree_roots,
+        table.node_feature,
+        table.node_threshold,
+        table.node_left,
+        table.node_right,
+    )
 
 
 def descend(table: TreeTable, n_rows: int, lookup: FeatureLookup) -> NDArray[np.int32]:

@@ -36,7 +36,7 @@ from scipy.spatial import cKDTree
 
 from glovedb._validate import as_array
 from tracker.fingertips.features import intrinsics_array, project, read_probes
-from tracker.fingertips.trees import check_tree_table, descend
+from tracker.fingertips.trees import check_tree_table, descend_matrix
 from tracker.fingertips.voting import Peaks, Votes
 
 RING_RADII_M: tuple[float, ...] = (0.01, 0.02, 0.03, 0.045)
@@ -256,5 +256,5 @@ def verify_peaks(verifier: PeakVerifier, features: ArrayLike) -> NDArray[np.floa
         From :func:`peak_features`.
     """
     values = as_array("features", features, (None, len(PEAK_FEATURES)), np.float32, kind="fiu")
-    leaves = descend(verifier, values.shape[0], lambda rows, feature: values[rows, feature])
+    leaves = descend_matrix(verifier, values)
     return verifier.node_probability[leaves].mean(axis=1).astype(np.float32)

@@ -1,10 +1,11 @@
-"""Compiled descent of the fingertip forest (for :mod:`tracker.fingertips.forest`).
+"""Compiled tree descents (for :mod:`tracker.fingertips.trees` and ``forest``).
 
-Each (pixel, tree) pair walks from the root to its leaf, computing the depth
-difference feature of every split it meets on the spot. It computes exactly what the
-level-by-level NumPy descent (:func:`tracker.fingertips.trees.descend` with
+Each (sample, tree) pair walks from the root to its leaf. :func:`descend_depth_forest`
+computes the depth difference feature of every split it meets on the spot: exactly
+what the level-by-level NumPy descent (:func:`tracker.fingertips.trees.descend` with
 :func:`tracker.fingertips.features.paired_feature_values`) does, in float32 with the
-same rounding, but reads only the probes on each pair's path, in one pass.
+same rounding, but reading only the probes on each pair's path, in one pass.
+:func:`descend_rows` reads the features from a matrix.
 """
 
 from __future__ import annotations
@@ -56,6 +57,31 @@ def descend_depth_forest(
                     probe = padded[row, column]
                     value = value + probe if j == 0 else value - probe
                 if value > node_threshold[node]:
+                    node = node_right[node]
+                else:
+                    node = node_left[node]
+            leaves[n, t] = node
+    return leaves
+
+
+@numba.njit(cache=True, nogil=True)
+def descend_rows(
+    values: NDArray[np.float32],
+    tree_roots: NDArray[np.int32],
+    node_feature: NDArray[np.int32],
+    node_threshold: NDArray[np.float32],
+    node_left: NDArray[np.int32],
+    node_right: NDArray[np.int32],
+) -> NDArray[np.int32]:
+    """Leaves ``(N, T)`` reached by every row of a feature matrix ``(N, F)`` in every tree."""
+    n_rows = values.shape[0]
+    n_trees = tree_roots.shape[0]
+    leaves = np.empty((n_rows, n_trees), dtype=np.int32)
+    for n in range(n_rows):
+        for t in range(n_trees):
+            node = tree_roots[t]
+            while node_feature[node] >= 0:
+                if values[n, node_feature[node]] > node_threshold[node]:
                     node = node_right[node]
                 else:
                     node = node_left[node]
