@@ -83,7 +83,7 @@ from torch import nn
 from tqdm import tqdm
 
 from builder.fingertip_data import data_config_from_dict, generate_examples
-from builder.fingertip_heatmap import HeatNet, augment, crop_units, heat_targets
+from builder.fingertip_heatmap import HeatNet, augment, crop_units, export_onnx, heat_targets
 from tracker.fingertips import Detection, detect_fingertips, load_forest, model_detector_config
 from tracker.fingertips.detect import candidate_peaks, detection_points
 from tracker.fingertips.evaluation import fingertip_metrics, read_annotated_depth
@@ -483,6 +483,11 @@ def cmd_union(args: argparse.Namespace) -> None:
         print("validation rule: no threshold keeps 0.95 precision on the validation frames")
 
 
+def cmd_export(args: argparse.Namespace) -> None:
+    """Write a network's ONNX file, for ``glove fingertips train --heatmap-network``."""
+    Path(args.out).write_bytes(export_onnx(load_net(args.net)).tobytes())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -510,6 +515,9 @@ def main() -> None:
     p.add_argument("--validation", default="/tmp/fingertips_validation")
     p.add_argument("--heldout", default="/tmp/fingertips_heldout")
     p.add_argument("--out", required=True)
+    p = sub.add_parser("export", help="write a network as ONNX")
+    p.add_argument("net")
+    p.add_argument("--out", required=True)
     p = sub.add_parser("union", help="verifier, union with the forest, validation rule")
     p.add_argument("caches", nargs="+", help="peaks files; the training rows of all are used")
     args = parser.parse_args()
@@ -520,6 +528,7 @@ def main() -> None:
         "eval": cmd_eval,
         "peaks": cmd_peaks,
         "union": cmd_union,
+        "export": cmd_export,
     }[args.command](args)
 
 

@@ -47,9 +47,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     train.add_argument(
         "--heatmap-network",
-        metavar="MODEL",
-        help="use the heatmap network of this model instead of training one (fits only "
-        "the [heatmap] verifier)",
+        metavar="FILE",
+        help="use this heatmap network (.onnx, or a model .npz that has one) instead of "
+        "training one: fits only the [heatmap] verifier",
     )
     train.add_argument(
         "--keep-verifier",
@@ -185,12 +185,7 @@ def run_train(args: argparse.Namespace) -> int:
     if args.keep_verifier and not args.forest:
         raise ValueError("--keep-verifier: needs --forest MODEL")
     base = load_forest(args.forest) if args.forest else None
-    network = None
-    if args.heatmap_network:
-        stage = load_forest(args.heatmap_network).heatmap
-        if stage is None:
-            raise ValueError(f"--heatmap-network {args.heatmap_network}: no heatmap stage in it")
-        network = stage.network_onnx
+    network = _heatmap_network(args.heatmap_network) if args.heatmap_network else None
     started = time.perf_counter()
     forest = train_from_recipe(
         recipe,
@@ -206,6 +201,26 @@ def run_train(args: argparse.Namespace) -> int:
         f"{size_mb:.1f} MB) in {time.perf_counter() - started:.0f} s"
     )
     return 0
+
+
+def _heatmap_network(path: str) -> Any:
+    """The ONNX bytes of ``--heatmap-network``: an ``.onnx`` file, or a model's network."""
+    import numpy as np
+
+    from tracker.fingertips.forest import load_forest
+    from tracker.fingertips.heatmap import HeatmapNetwork
+
+    if not path.endswith(".onnx"):
+        stage = load_forest(path).heatmap
+        if stage is None:
+            raise ValueError(f"--heatmap-network {path}: the model has no heatmap stage")
+        return stage.network_onnx
+    try:
+        network = np.frombuffer(Path(path).read_bytes(), dtype=np.uint8)
+    except OSError as error:
+        raise ValueError(f"--heatmap-network {path}: cannot read ({error.strerror})") from error
+    HeatmapNetwork(network, 1)  # refuses what onnxruntime cannot load, before any work
+    return network
 
 
 def run_synth(args: argparse.Namespace) -> int:

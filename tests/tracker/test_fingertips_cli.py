@@ -62,6 +62,10 @@ def run_glove(*args: str) -> subprocess.CompletedProcess:
         (["fingertips", "eval", ".", "--min-tip-probability", "2"], "expected a probability"),
         (["fingertips", "eval", ".", "--heatmap-min-probability", "-1"], "expected a probability"),
         (["fingertips", "train", HELDOUT, "--out", "m.npz", "--keep-verifier"], "needs --forest"),
+        (
+            ["fingertips", "train", HELDOUT, "--out", "m.npz", "--heatmap-network", "/no/n.onnx"],
+            "cannot read",
+        ),
         (["fingertips", "eval", ".", "--c-thr", "inf"], "expected a positive, finite"),
         (["fingertips", "eval", str(REAL), "--pose-guess"], "need groundtruth.jsonl"),
         (["fingertips", "eval", ".", "--sheet", "scores.txt"], "expected a .png"),
