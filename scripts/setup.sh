@@ -4,8 +4,11 @@
 #     machine without a GPU), libGL/libX11 and libusb/libudev (Open3D), libgomp
 #     (scikit-learn), and Python's venv module if the distribution split it off;
 #   - a virtual environment in .venv with the project installed (editable), its test
-#     tools and its training extra (PyTorch's CPU build and onnx, which only training
-#     the fingertip heatmap network needs).
+#     tools and its training extra (PyTorch 2.13.0 and onnx, which only training the
+#     fingertip heatmap network needs). Where pip finds PyTorch's CPU wheel at hand (a
+#     find-links folder, as on our CI machines) it takes that; elsewhere it fetches
+#     PyPI's build with its CUDA packages (several GB): to avoid that, first run
+#     .venv/bin/pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu
 # Running it again is quick: it installs only what is missing or changed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -41,8 +44,7 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$wanted" ]; then
   echo "setup: installing the project into .venv"
   .venv/bin/python -m pip install -q --upgrade pip 2>&1 | grep -v "^WARNING: Location" || true
   .venv/bin/python -c "import torch" 2>/dev/null \
-    || .venv/bin/python -m pip install -q torch --index-url https://download.pytorch.org/whl/cpu 2>&1 \
-    | grep -v "^WARNING: Location" || true
+    || .venv/bin/python -m pip install -q "torch==2.13.0" 2>&1 | grep -v "^WARNING: Location" || true
   .venv/bin/python -m pip install -q -e ".[dev,train]" 2>&1 | grep -v "^WARNING: Location" || true
   .venv/bin/python -c "import glovedb, builder, tracker, open3d, pyrender, torch, onnx" \
     || { echo "setup: the installed project does not import" >&2; exit 1; }
