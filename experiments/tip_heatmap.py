@@ -88,7 +88,7 @@ from tracker.fingertips import Detection, detect_fingertips, load_forest, model_
 from tracker.fingertips.detect import candidate_peaks, detection_points
 from tracker.fingertips.evaluation import fingertip_metrics, read_annotated_depth
 from tracker.fingertips.heatmap import CROP_HALF_M as HALF_M
-from tracker.fingertips.heatmap import GRID, hand_centre, hand_crop
+from tracker.fingertips.heatmap import GRID, HEAT_PEAK_FEATURES, hand_centre, hand_crop
 from tracker.fingertips.verify import verify_peaks
 
 SIGMA_CELLS = 1.2
@@ -181,30 +181,8 @@ def report(detections: list[tuple[Detection, ...]], data) -> str:
     )
 
 
-FEATURES = (
-    "value",
-    "tta_std",
-    "mean_3x3",
-    "mean_5x5",
-    "n_peaks",
-    "rank",
-    "cells_from_centre",
-    "depth_from_centre_m",
-    "centre_depth_m",
-    "window_valid",
-    "window_spread_m",
-    "front_minus_median_m",
-    "depth_m",
-    "n_candidates",
-    "n_forest_detections",
-    "candidate_distance_m",
-    "candidate_confidence",
-    "candidate_probability",
-    "best_probability_2cm",
-    "confidence_2cm",
-    "tta_min",
-    "tta_share_above_half",
-)
+FEATURES = HEAT_PEAK_FEATURES
+"""The package's names of the 22 features (the prototype computes them in this order)."""
 
 
 def peak_rows(

@@ -3,6 +3,7 @@
 import numpy as np
 
 from tracker.fingertips import DetectorConfig, FingertipForest
+from tracker.fingertips.verify import PeakVerifier
 
 STRIDE_1 = DetectorConfig(stride=1)
 
@@ -38,4 +39,16 @@ def toy_forest() -> FingertipForest:
         node_right=np.array([2, -1, -1], np.int32),
         node_probability=np.array([0.1, 0.0, 1.0], np.float32),
         node_offset_m=np.array([[0, 0, 0], [0, 0, 0], [0, -PROBE_M / 2, 0]], np.float32),
+    )
+
+
+def constant_verifier(probability: float) -> PeakVerifier:
+    """One tree, one leaf: every peak gets ``probability``."""
+    return PeakVerifier(
+        tree_roots=np.array([0], np.int32),
+        node_feature=np.array([-1], np.int32),
+        node_threshold=np.zeros(1, np.float32),
+        node_left=np.array([-1], np.int32),
+        node_right=np.array([-1], np.int32),
+        node_probability=np.array([probability], np.float32),
     )

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fingertip_toys import INTRINSICS, STRIDE_1, Z_M, toy_forest
+from fingertip_toys import INTRINSICS, STRIDE_1, Z_M, constant_verifier, toy_forest
 from numpy.typing import NDArray
 from sklearn.ensemble import HistGradientBoostingClassifier
 
@@ -42,7 +42,6 @@ from tracker.fingertips.heatmap import (
     heatmap_peaks,
     unturn_maps,
 )
-from tracker.fingertips.verify import PeakVerifier
 
 TINY_ONNX = Path(__file__).resolve().parents[1] / "data" / "fingertips" / "tiny_heatmap.onnx"
 CAMERA = np.asarray(INTRINSICS)
@@ -98,18 +97,6 @@ def _stage(
         passes=passes,
         min_value=min_value,
         **table,
-    )
-
-
-def _constant_verifier(probability: float) -> PeakVerifier:
-    """One tree, one leaf: every forest peak gets ``probability``."""
-    return PeakVerifier(
-        tree_roots=np.array([0], np.int32),
-        node_feature=np.array([-1], np.int32),
-        node_threshold=np.zeros(1, np.float32),
-        node_left=np.array([-1], np.int32),
-        node_right=np.array([-1], np.int32),
-        node_probability=np.array([probability], np.float32),
     )
 
 
@@ -326,7 +313,7 @@ def test_stage_settings_are_checked() -> None:
 def test_model_file_keeps_the_heatmap_stage(tmp_path: Path) -> None:
     stage = _stage(split_value=0.75, leaf_values=(-1.5, 2.0), baseline=0.25, passes=2)
     stage = replace(stage, min_value=0.4)
-    forest = replace(toy_forest(), verifier=_constant_verifier(0.9), heatmap=stage)
+    forest = replace(toy_forest(), verifier=constant_verifier(0.9), heatmap=stage)
     save_forest(forest, tmp_path / "m.npz")
     loaded = load_forest(tmp_path / "m.npz").heatmap
     assert loaded is not None
@@ -392,7 +379,7 @@ def _heatmap_model() -> FingertipForest:
     """The toy forest, verified with 0.9, and the tiny network whose verifier gives
     sigmoid(1) to a heat above 0.97 and sigmoid(-1) to the rest."""
     stage = _stage(split_value=0.97, leaf_values=(-1.0, 1.0))
-    return replace(toy_forest(), verifier=_constant_verifier(0.9), heatmap=stage)
+    return replace(toy_forest(), verifier=constant_verifier(0.9), heatmap=stage)
 
 
 def test_detection_adds_heatmap_peaks_apart_from_the_forest() -> None:
@@ -444,7 +431,7 @@ def test_detection_without_the_heatmap_threshold_ignores_the_stage() -> None:
     depth = _stub_and_domes()
     config = replace(STRIDE_1, min_tip_probability=0.5)
     with_stage = detect_fingertips(depth, INTRINSICS, _heatmap_model(), config=config)
-    plain = replace(toy_forest(), verifier=_constant_verifier(0.9))
+    plain = replace(toy_forest(), verifier=constant_verifier(0.9))
     assert with_stage == detect_fingertips(depth, INTRINSICS, plain, config=config)
     assert [d.source for d in with_stage] == ["forest"]
     with pytest.raises(ValueError, match="no heatmap stage"):

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fingertip_toys import INTRINSICS, STRIDE_1, Z_M, bar_scene, toy_forest
+from fingertip_toys import INTRINSICS, STRIDE_1, Z_M, bar_scene, constant_verifier, toy_forest
 from sklearn.ensemble import RandomForestClassifier
 
 from builder.fingertip_verifier import (
@@ -21,7 +21,6 @@ from tracker.fingertips.forest import load_forest, save_forest
 from tracker.fingertips.verify import (
     PEAK_FEATURES,
     RING_PROBES,
-    PeakVerifier,
     peak_features,
     ring_features,
     verify_peaks,
@@ -30,18 +29,6 @@ from tracker.fingertips.voting import Peaks, Votes
 
 COLUMN = {name: k for k, name in enumerate(PEAK_FEATURES)}
 CAMERA = np.asarray(INTRINSICS)
-
-
-def _constant_verifier(probability: float) -> PeakVerifier:
-    """One tree, one leaf: every peak gets ``probability``."""
-    return PeakVerifier(
-        tree_roots=np.array([0], np.int32),
-        node_feature=np.array([-1], np.int32),
-        node_threshold=np.zeros(1, np.float32),
-        node_left=np.array([-1], np.int32),
-        node_right=np.array([-1], np.int32),
-        node_probability=np.array([probability], np.float32),
-    )
 
 
 def test_ring_features_tell_a_fingertip_from_a_flat_surface() -> None:
@@ -132,7 +119,7 @@ def test_label_peaks_is_one_to_one_and_ignores_hidden_tips() -> None:
 
 
 def test_model_file_keeps_the_verifier_and_reads_format_1(tmp_path: Path) -> None:
-    forest = replace(toy_forest(), verifier=_constant_verifier(0.25))
+    forest = replace(toy_forest(), verifier=constant_verifier(0.25))
     save_forest(forest, tmp_path / "m.npz")
     loaded = load_forest(tmp_path / "m.npz")
     assert loaded.verifier is not None
@@ -153,7 +140,7 @@ def test_detection_keeps_the_peaks_the_verifier_accepts() -> None:
     plain = detect_fingertips(depth, INTRINSICS, toy_forest(), config=STRIDE_1)
     assert len(plain) == 1 and plain[0].tip_probability is None
     checking = replace(STRIDE_1, min_tip_probability=0.5)
-    accept = replace(toy_forest(), verifier=_constant_verifier(0.9))
+    accept = replace(toy_forest(), verifier=constant_verifier(0.9))
     (kept,) = detect_fingertips(depth, INTRINSICS, accept, config=checking)
     assert kept.tip_probability == pytest.approx(0.9)
     assert (kept.x_m, kept.y_m, kept.z_m, kept.confidence) == (
@@ -162,7 +149,7 @@ def test_detection_keeps_the_peaks_the_verifier_accepts() -> None:
         plain[0].z_m,
         plain[0].confidence,
     )
-    reject = replace(toy_forest(), verifier=_constant_verifier(0.1))
+    reject = replace(toy_forest(), verifier=constant_verifier(0.1))
     assert detect_fingertips(depth, INTRINSICS, reject, config=checking) == ()
     with pytest.raises(ValueError, match="no peak verifier"):
         detect_fingertips(depth, INTRINSICS, toy_forest(), config=checking)
