@@ -17,6 +17,8 @@ environment:
     python experiments/tip_heatmap.py train d10?.npz --out hm1.pt --epochs 18 --whole-hands
     python experiments/tip_heatmap.py train d10?.npz --out hm4.pt --epochs 5 --init hm1.pt \
         --lr 1e-3
+    # the shipped network (docs/fingertips.md, "Model file", gives the step after it)
+    python experiments/tip_heatmap.py export hm4.pt --out hm4.onnx
     # the network alone on annotated folders
     python experiments/tip_heatmap.py eval hm4.pt /tmp/fingertips_validation
     # test frames whose curled tips follow the real annotations' rule ("surface"), and
