@@ -44,7 +44,7 @@ from torch import nn
 from builder.fingertip_data import FingertipDataConfig, data_config_from_dict, generate_examples
 from builder.tree_export import pack_boosted_table
 from glovedb._validate import dataclass_from_table
-from tracker.fingertips.detect import DetectorConfig, candidate_peaks
+from tracker.fingertips.detect import DetectorConfig, verified_candidates
 from tracker.fingertips.forest import FingertipForest
 from tracker.fingertips.heatmap import (
     CROP_HALF_M,
@@ -57,7 +57,6 @@ from tracker.fingertips.heatmap import (
     hand_centre,
     hand_crop,
 )
-from tracker.fingertips.verify import verify_peaks
 
 _WHOLE_HAND_XY_M = 0.14
 """A crop holds the whole hand when every keypoint lies this close to its centre (x, y)."""
@@ -469,19 +468,19 @@ def collect_heat_samples(
         raise ValueError("heatmap: the forest needs its peak verifier (a [verifier] table)")
     features, labels = [], []
     for depth_m, intrinsics, tips_m in images:
-        candidates, candidate_features = candidate_peaks(
+        candidates, probability, hand = verified_candidates(
             depth_m, intrinsics, forest, config=detector
         )
-        probability = verify_peaks(forest.verifier, candidate_features)
         peaks, frame_features = frame_heat_peaks(
             depth_m,
             intrinsics,
             network,
-            candidates.positions_m.astype(np.float64),
-            candidates.confidences.astype(np.float64),
-            probability.astype(np.float64),
+            candidates.positions_m,
+            candidates.confidences,
+            probability,
             min_value=config.min_value,
             min_tip_probability=detector.min_tip_probability,
+            hand_depth_m=hand,
         )
         features.append(frame_features)
         labels.append(label_heat_peaks(peaks.xyz_m, tips_m, radius_m=config.match_radius_m))

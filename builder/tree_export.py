@@ -5,6 +5,7 @@ Inference then needs neither scikit-learn nor pickle.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import TypeAlias, TypedDict
 
 import numpy as np
@@ -53,6 +54,38 @@ def node_probability(classifier: SklearnForest, tree_index: int) -> NDArray[np.f
     return np.asarray(counts[:, 1] / counts.sum(axis=1), dtype=np.float64)
 
 
+def _node_table(
+    trees: Iterable[tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]],
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """Trees given as ``(is_split, feature, threshold, left, right, value)`` per-node
+    arrays (children as indices within the tree) packed into one node table; ``value``
+    is each node's stored number (probability or leaf value).
+
+    Returns the roots and the node feature, threshold, left, right and value columns,
+    in the dtypes of :class:`TreeArrays`."""
+    columns: dict[str, list[NDArray]] = {
+        k: [] for k in ("feature", "threshold", "left", "right", "value")
+    }
+    roots = []
+    start = 0
+    for split, feature, threshold, left, right, value in trees:
+        roots.append(start)
+        columns["feature"].append(np.where(split, feature, -1))
+        columns["threshold"].append(np.where(split, _threshold_float32(threshold), np.float32(0)))
+        columns["left"].append(np.where(split, left.astype(np.int64) + start, -1))
+        columns["right"].append(np.where(split, right.astype(np.int64) + start, -1))
+        columns["value"].append(value)
+        start += len(split)
+    return (
+        np.asarray(roots, dtype=np.int32),
+        np.concatenate(columns["feature"]).astype(np.int32),
+        np.concatenate(columns["threshold"]).astype(np.float32),
+        np.concatenate(columns["left"]).astype(np.int32),
+        np.concatenate(columns["right"]).astype(np.int32),
+        np.concatenate(columns["value"]).astype(np.float32),
+    )
+
+
 def pack_tree_table(classifier: SklearnForest) -> TreeArrays:
     """The trees of a fitted forest as one node table (:mod:`tracker.fingertips.trees`).
 
@@ -61,30 +94,24 @@ def pack_tree_table(classifier: SklearnForest) -> TreeArrays:
     TreeArrays
         ``node_probability`` is :func:`node_probability` of every node.
     """
-    columns: dict[str, list[NDArray]] = {
-        k: [] for k in ("feature", "threshold", "left", "right", "probability")
-    }
-    roots = []
-    start = 0
-    for t, estimator in enumerate(classifier.estimators_):
-        tree = estimator.tree_
-        split = tree.children_left >= 0
-        roots.append(start)
-        columns["feature"].append(np.where(split, tree.feature, -1))
-        columns["threshold"].append(
-            np.where(split, _threshold_float32(tree.threshold), np.float32(0.0))
+    roots, feature, threshold, left, right, probability = _node_table(
+        (
+            estimator.tree_.children_left >= 0,
+            estimator.tree_.feature,
+            estimator.tree_.threshold,
+            estimator.tree_.children_left,
+            estimator.tree_.children_right,
+            node_probability(classifier, t),
         )
-        columns["left"].append(np.where(split, tree.children_left + start, -1))
-        columns["right"].append(np.where(split, tree.children_right + start, -1))
-        columns["probability"].append(node_probability(classifier, t))
-        start += tree.node_count
+        for t, estimator in enumerate(classifier.estimators_)
+    )
     return TreeArrays(
-        tree_roots=np.asarray(roots, dtype=np.int32),
-        node_feature=np.concatenate(columns["feature"]).astype(np.int32),
-        node_threshold=np.concatenate(columns["threshold"]).astype(np.float32),
-        node_left=np.concatenate(columns["left"]).astype(np.int32),
-        node_right=np.concatenate(columns["right"]).astype(np.int32),
-        node_probability=np.concatenate(columns["probability"]).astype(np.float32),
+        tree_roots=roots,
+        node_feature=feature,
+        node_threshold=threshold,
+        node_left=left,
+        node_right=right,
+        node_probability=probability,
     )
 
 
@@ -115,29 +142,26 @@ def pack_boosted_table(classifier: HistGradientBoostingClassifier) -> BoostedTre
     """
     if len(classifier.classes_) != 2:
         raise ValueError("classifier: expected a binary classifier")
-    columns: dict[str, list[NDArray]] = {k: [] for k in ("feature", "threshold", "left", "right")}
-    values, roots = [], []
-    start = 0
-    for (predictor,) in classifier._predictors:
-        nodes = predictor.nodes
-        if nodes["is_categorical"].any():
-            raise ValueError("classifier: categorical splits cannot be exported")
-        split = nodes["is_leaf"] == 0
-        roots.append(start)
-        columns["feature"].append(np.where(split, nodes["feature_idx"], -1))
-        columns["threshold"].append(
-            np.where(split, _threshold_float32(nodes["num_threshold"]), np.float32(0.0))
+    trees = [predictor.nodes for (predictor,) in classifier._predictors]
+    if any(nodes["is_categorical"].any() for nodes in trees):
+        raise ValueError("classifier: categorical splits cannot be exported")
+    roots, feature, threshold, left, right, value = _node_table(
+        (
+            nodes["is_leaf"] == 0,
+            nodes["feature_idx"],
+            nodes["num_threshold"],
+            nodes["left"],
+            nodes["right"],
+            np.where(nodes["is_leaf"] == 0, 0.0, nodes["value"]),
         )
-        columns["left"].append(np.where(split, nodes["left"].astype(np.int64) + start, -1))
-        columns["right"].append(np.where(split, nodes["right"].astype(np.int64) + start, -1))
-        values.append(np.where(split, 0.0, nodes["value"]))
-        start += len(nodes)
+        for nodes in trees
+    )
     return BoostedTreeArrays(
-        tree_roots=np.asarray(roots, dtype=np.int32),
-        node_feature=np.concatenate(columns["feature"]).astype(np.int32),
-        node_threshold=np.concatenate(columns["threshold"]).astype(np.float32),
-        node_left=np.concatenate(columns["left"]).astype(np.int32),
-        node_right=np.concatenate(columns["right"]).astype(np.int32),
-        node_value=np.concatenate(values).astype(np.float32),
+        tree_roots=roots,
+        node_feature=feature,
+        node_threshold=threshold,
+        node_left=left,
+        node_right=right,
+        node_value=value,
         baseline=float(np.ravel(classifier._baseline_prediction)[0]),
     )

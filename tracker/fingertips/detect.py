@@ -302,6 +302,44 @@ def candidate_peaks(
     return _candidates(depth_m, intrinsics_array(intrinsics), model, config)[:2]
 
 
+def verified_candidates(
+    depth_m: ArrayLike,
+    intrinsics: ArrayLike,
+    model: FingertipForest,
+    *,
+    config: DetectorConfig = DEFAULT_DETECTOR,
+) -> tuple[Peaks, NDArray[np.float32], NDArray[np.float32] | None]:
+    """Candidate peaks with their verifier probabilities: what the heatmap stage reads.
+
+    Parameters
+    ----------
+    depth_m : (H, W) float32
+        Depth in metres, 0 where missing.
+    intrinsics : (4,) float
+    model : FingertipForest
+        With a peak verifier.
+    config : DetectorConfig
+
+    Returns
+    -------
+    peaks : Peaks
+        Every candidate above ``config.c_thr``, strongest first.
+    probability : (K,) float32
+        Their verifier probabilities.
+    hand_depth_m : (H, W) float32 or None
+        The forest's hand depth when it is cut like the heatmap's crop centre needs it
+        (:func:`tracker.fingertips.heatmap.hand_centre`), else None.
+    """
+    if model.verifier is None:
+        raise ValueError("model: has no peak verifier (a [verifier] table)")
+    camera = intrinsics_array(intrinsics)
+    candidates, features, masked = _candidates(depth_m, camera, model, config)
+    same_cut = np.allclose(model.depth_range_m, HAND_DEPTH_RANGE_M, rtol=1e-6) and (
+        config.depth_band_m == HAND_BAND_M
+    )
+    return candidates, verify_peaks(model.verifier, features), masked if same_cut else None
+
+
 def detect_fingertips(
     depth_m: ArrayLike,
     intrinsics: ArrayLike,
@@ -351,34 +389,19 @@ def detect_fingertips(
             "trained with a [heatmap] table"
         )
     depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
-    tip_probability: NDArray[np.float32] | None = None
-    candidates = Peaks(np.zeros((0, 3), np.float32), np.zeros(0, np.float32))
-    candidate_probability = np.zeros(0, np.float32)
     if model.verifier is None:
-        votes, _, masked = _frame_votes(depth, camera, model, config)
+        votes = _frame_votes(depth, camera, model, config)[0]
         peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
+        detections = _forest_detections(peaks, None, camera)
     else:
-        candidates, features, masked = _candidates(depth, camera, model, config)
-        candidate_probability = verify_peaks(model.verifier, features)
-        keep = candidate_probability >= config.min_tip_probability
+        candidates, probability, hand = verified_candidates(depth, camera, model, config=config)
+        keep = probability >= config.min_tip_probability
         peaks = Peaks(candidates.positions_m[keep], candidates.confidences[keep])
-        tip_probability = candidate_probability[keep]
-    detections = _forest_detections(peaks, tip_probability, camera)
-    if config.heatmap_min_probability > 0 and model.heatmap is not None:
-        # The forest's hand depth serves the crop centre when it was cut alike.
-        same_cut = np.allclose(model.depth_range_m, HAND_DEPTH_RANGE_M, rtol=1e-6) and (
-            config.depth_band_m == HAND_BAND_M
-        )
-        detections += _heatmap_detections(
-            depth,
-            camera,
-            model.heatmap,
-            config,
-            candidates,
-            candidate_probability,
-            detections,
-            hand_depth_m=masked if same_cut else None,
-        )
+        detections = _forest_detections(peaks, probability[keep], camera)
+        if config.heatmap_min_probability > 0 and model.heatmap is not None:
+            detections += _heatmap_detections(
+                depth, camera, model.heatmap, config, candidates, probability, detections, hand
+            )
     if model_tips_m is None:
         return detections
     return name_fingers(
@@ -419,7 +442,6 @@ def _heatmap_detections(
     candidates: Peaks,
     candidate_probability: NDArray[np.float32],
     forest_detections: tuple[Detection, ...],
-    *,
     hand_depth_m: NDArray[np.float32] | None,
 ) -> tuple[Detection, ...]:
     """The heatmap's accepted peaks, most probable first, each farther than the voting's
@@ -428,9 +450,9 @@ def _heatmap_detections(
         depth_m,
         camera,
         stage,
-        candidates.positions_m.astype(np.float64),
-        candidates.confidences.astype(np.float64),
-        candidate_probability.astype(np.float64),
+        candidates.positions_m,
+        candidates.confidences,
+        candidate_probability,
         min_tip_probability=config.min_tip_probability,
         hand_depth_m=hand_depth_m,
     )

@@ -23,9 +23,10 @@ their precision by dropping both. This stage looks at the whole hand:
    probability) give the probability that the peak lies within 15 mm of a visible
    fingertip.
 
-Accepted peaks farther than ``separation_m`` from every detection of the forest are
-added to them (:func:`tracker.fingertips.detect.detect_fingertips`). The network and
-the verifier are trained by :mod:`builder.fingertip_heatmap` (docs/fingertips.md).
+Accepted peaks farther than the voting's ``min_separation_m`` from every detection of
+the forest and every more probable accepted peak are added to them
+(:func:`tracker.fingertips.detect.detect_fingertips`). The network and the verifier
+are trained by :mod:`builder.fingertip_heatmap` (docs/fingertips.md).
 """
 
 from __future__ import annotations
@@ -295,9 +296,9 @@ def heat_peak_features(
     centre: NDArray[np.float64],
     depth_m: NDArray[np.float32],
     intrinsics: NDArray[np.float64],
-    candidates_m: NDArray[np.float64],
-    candidate_confidences: NDArray[np.float64],
-    candidate_probabilities: NDArray[np.float64],
+    candidates_m: ArrayLike,
+    candidate_confidences: ArrayLike,
+    candidate_probabilities: ArrayLike,
     *,
     min_tip_probability: float,
 ) -> NDArray[np.float32]:
@@ -313,14 +314,17 @@ def heat_peak_features(
         The crop's centre, metres.
     depth_m : (H, W) float32
     intrinsics : (4,) float64
-    candidates_m : (C, 3) float64
+    candidates_m : (C, 3) float
         The forest's candidate vote peaks (every peak above ``c_thr``), metres.
-    candidate_confidences, candidate_probabilities : (C,) float64
+    candidate_confidences, candidate_probabilities : (C,) float
         Their vote weights and the peak verifier's probabilities.
     min_tip_probability : float
         The forest verifier's threshold: candidates reaching it are the forest's
         detections.
     """
+    candidates_m = np.asarray(candidates_m, dtype=np.float64).reshape(-1, 3)
+    candidate_confidences = np.asarray(candidate_confidences, dtype=np.float64)
+    candidate_probabilities = np.asarray(candidate_probabilities, dtype=np.float64)
     heat = maps.mean(axis=0)
     spread = maps.std(axis=0)
     values = peaks.values
@@ -485,9 +489,9 @@ def frame_heat_peaks(
     depth_m: NDArray[np.float32],
     intrinsics: ArrayLike,
     network: Callable[[NDArray[np.float32]], NDArray[np.float32]],
-    candidates_m: NDArray[np.float64],
-    candidate_confidences: NDArray[np.float64],
-    candidate_probabilities: NDArray[np.float64],
+    candidates_m: ArrayLike,
+    candidate_confidences: ArrayLike,
+    candidate_probabilities: ArrayLike,
     *,
     min_value: float,
     min_tip_probability: float,
@@ -543,9 +547,9 @@ def heatmap_peaks(
     depth_m: NDArray[np.float32],
     intrinsics: ArrayLike,
     stage: HeatmapStage,
-    candidates_m: NDArray[np.float64],
-    candidate_confidences: NDArray[np.float64],
-    candidate_probabilities: NDArray[np.float64],
+    candidates_m: ArrayLike,
+    candidate_confidences: ArrayLike,
+    candidate_probabilities: ArrayLike,
     *,
     min_tip_probability: float,
     hand_depth_m: NDArray[np.float32] | None = None,
