@@ -1,38 +1,39 @@
-"""The tracker: from one RGB-D frame to the hand's posture and 6D pose (thesis Fig. 4.3).
+"""The tracker: from one RGB-D frame to the hand's posture and 6D pose.
 
 Per frame:
 
 1. **classify** every pixel's color with the lookup table (:mod:`tracker.classify`);
-2. **segment** the hand's glove pixels and build the labeled point cloud
-   (:mod:`tracker.point_cloud`); too few glove pixels means "no hand";
-3. **look up** the tiny images of the hand's pixels in the database
-   (:class:`glovedb.lookup.DatabaseIndex`): posture ``theta`` and rotation ``R_db``
-   blended from the nearest entries. The last stage keeps a few more candidates
-   (``lookup_candidates``), which are re-ranked by their matching error plus
-   ``temporal_prior_px`` per radian of mean joint-angle difference from the previous
-   frame's posture (:func:`temporal_scores`): where a view is ambiguous (the back of
-   a fist looks much like the back of a flat hand at 64 x 64 pixels) the lookup keeps
-   to the posture it was in. Database views look at the hand along the
-   optical axis; a hand seen off-axis is seen along the ray ``d`` through the
-   centre of its pixels, so the coarse rotation is ``R = R_ray @ R_db`` with
-   ``R_ray`` the smallest rotation taking +z to ``d``;
-4. **align**: pose the skinned model with ``theta``, place it at ``R`` with its
-   visible surface's centroid on the point cloud's centroid, and refine the rigid
-   pose with color-sensitive ICP (:mod:`tracker.icp`);
-5. **refine** posture and pose together by articulated, color-sensitive ICP
-   (:mod:`tracker.refine`), starting from the looked-up posture; with a fingertip
-   model (``fingertip_model``), fingertips detected in the depth alone
-   (:mod:`tracker.fingertips`) and named by Eq. 11 of Tzionas et al. against the
-   aligned model's fingertips pull those fingertips toward them;
-6. **smooth** over the last frames (:class:`PoseSmoother`), and report keypoints,
-   fingertips, a confidence and per-stage timings.
+2. **segment** the hand's glove pixels, build the labeled point cloud
+   (:mod:`tracker.point_cloud`) and the fit's view of the frame
+   (:mod:`tracker.generative.observation`); too few glove pixels means "no hand";
+3. **fit** the articulated hand by minimising the energy of
+   :mod:`tracker.generative.fit` (data, silhouette with occlusion, posture prior,
+   joint limits, collision, temporal and fingertip terms), starting from the previous
+   frame's solution;
+4. **look up** a second start in the database when there is no previous solution,
+   when the fit from it fails the quality test, or every ``reinit_every`` frames:
+   the tiny images of the hand's pixels give a posture and a rotation
+   (:class:`glovedb.lookup.DatabaseIndex`, candidates re-ranked by their distance to
+   the previous posture, :func:`temporal_scores`); the database's views look along
+   the optical axis, so a hand seen off-axis is turned by ``R_ray``, the smallest
+   rotation taking +z to the ray through the hand's pixels; the skinned model is
+   placed there and aligned by color-sensitive ICP (:mod:`tracker.icp`); the fit
+   from this start competes with the first: the lower energy wins;
+5. **check** the winner: a fit that pairs too few observed points with the model,
+   shows model surface where the camera sees none, or lies too far from the points
+   (``min_matched``, ``max_outside``, ``max_rms_m``) is "no hand", and the next frame
+   starts from the lookup again: a wrong pose is never reported as found;
+6. while the user's **hand proportions** are unknown, the first
+   ``calibration_frames`` fits estimate them too (:mod:`glovedb.proportions`);
+7. report keypoints with their visibility (:mod:`tracker.generative.visibility`),
+   fingertips, a confidence (:func:`fit_quality`) and per-stage timings.
 """
 
 from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,6 +55,8 @@ from glovedb.hand_model import (
 from glovedb.lookup import DatabaseIndex, default_cascade
 from glovedb.mesh import make_hand_mesh, pose_mesh, vertex_normals
 from glovedb.pattern import load_pattern, split_by_label
+from glovedb.posture_prior import load_posture_prior
+from glovedb.proportions import HandProportions, proportioned_mesh
 from glovedb.rotations import axis_angle_to_matrix, geodesic_angle
 from glovedb.search import interpolate_pose, parse_cascade
 from glovedb.tiny_images import tiny_images_from_pixels
@@ -61,13 +64,16 @@ from tracker.classify import ColorTable, nominal_table
 from tracker.fingertips.detect import Detection, detection_points, fingertips_output
 from tracker.fingertips.detector import FingertipDetector
 from tracker.frames import Frame
+from tracker.generative.fit import FitSettings, FrameFit, fit_frame
+from tracker.generative.model import HandPose, PosedHand, hand_samples
+from tracker.generative.observation import Observation, observe
+from tracker.generative.visibility import keypoint_visibility
 from tracker.icp import IcpResult, color_icp
-from tracker.point_cloud import hand_region, labeled_point_cloud
-from tracker.refine import refine
+from tracker.point_cloud import HandRegion, LabeledPointCloud, hand_region, labeled_point_cloud
 
-STAGES = ("classify", "segment", "lookup", "icp", "fingertips", "refine", "total")
+STAGES = ("classify", "segment", "fingertips", "lookup", "icp", "fit", "total")
 """Per-frame ``timing_ms`` keys in pipeline order (``fingertips`` only with a fingertip
-model, ``refine`` only with refinement)."""
+model, ``lookup`` and ``icp`` only in frames where the database offered a start)."""
 
 
 @dataclass(frozen=True)
@@ -94,14 +100,28 @@ class TrackerSettings:
     icp_max_points : int
         And at most this many.
     smoothing_frames : int
-        Frames blended by the smoother (1 turns smoothing off).
-    refine_iterations : int
-        Gauss-Newton steps of the generative refinement of posture and pose
-        (:mod:`tracker.refine`); 0 turns it off.
-    refine_prior : float
-        Pull toward the looked-up posture (metres of residual per radian).
-    refine_max_points : int
-        Cloud points used by the refinement.
+        Frames blended by the posture smoother (1, the default, turns it off: the fit's
+        temporal term smooths without the smoother's lag).
+    fit : FitSettings
+        Weights and settings of the generative fit (:mod:`tracker.generative.fit`).
+    reinit_every : int
+        While tracking, the database lookup offers a second start every this many
+        frames (and whenever the fit from the previous frame fails the quality test);
+        the fit with the lower energy wins. 1 looks up every frame.
+    min_matched : float
+        A fit that pairs fewer of the observed glove points with the model surface
+        of their color (within ``fit.data_gate_m``) is not trusted: no hand.
+    max_outside : float
+        Nor one whose camera-facing model surface lies outside the observed hand
+        (and is not hidden by something in front) by more than this share.
+    max_rms_m : float
+        Nor one whose paired points lie farther from the model surface (RMS, metres).
+    hand_proportions : HandProportions or None
+        The user's hand proportions (:mod:`glovedb.proportions`); None (the default)
+        estimates them online over the first ``calibration_frames`` tracked frames
+        and then keeps them.
+    calibration_frames : int
+        Tracked frames over which the proportions are estimated (0: keep the model's).
     lookup_candidates : int
         Entries the cascade's last stage keeps for the temporal re-ranking (at least
         its own k are blended).
@@ -113,12 +133,6 @@ class TrackerSettings:
         A fingertip model (``.npz``, :mod:`tracker.fingertips.forest`), or
         ``"default"`` for the shipped one: its detections take part in the
         refinement. None (the default) detects no fingertips.
-    fingertip_weight : float
-        Weight of a named detection in the refinement (``tip_weight`` of
-        :func:`tracker.refine.refine`).
-    fingertip_deadband_m : float
-        Model fingertips this close to their detection are not pulled
-        (``tip_deadband_m`` of :func:`tracker.refine.refine`).
     mesh_spacing_m : float
         Resolution of the model surface used by ICP.
     workers : int or None
@@ -132,17 +146,28 @@ class TrackerSettings:
     icp_iterations: int = 25
     icp_stride: int = 1
     icp_max_points: int = 500
-    smoothing_frames: int = 3
+    smoothing_frames: int = 1
     mesh_spacing_m: float = 0.003
-    refine_iterations: int = 3
-    refine_prior: float = 0.02
-    refine_max_points: int = 500
+    fit: FitSettings = field(default_factory=FitSettings)
+    reinit_every: int = 10
+    min_matched: float = 0.6
+    max_outside: float = 0.3
+    max_rms_m: float = 0.008
+    hand_proportions: HandProportions | None = None
+    calibration_frames: int = 30
     lookup_candidates: int = 10
     temporal_prior_px: float = 1.0
     fingertip_model: str | None = None
-    fingertip_weight: float = 4.0
-    fingertip_deadband_m: float = 0.015
     workers: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.reinit_every < 1:
+            raise ValueError(f"reinit_every: expected >= 1, got {self.reinit_every}")
+        if self.calibration_frames < 0:
+            raise ValueError(f"calibration_frames: expected >= 0, got {self.calibration_frames}")
+        for name in ("min_matched", "max_outside"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"{name}: expected 0 to 1, got {getattr(self, name)}")
 
 
 def fit_confidence(lookup_error_px: float, icp: IcpResult) -> float:
@@ -191,6 +216,7 @@ class TrackingResult:
     confidence: float = 0.0
     timing_ms: dict[str, float] = field(default_factory=dict)
     fingertip_detections: tuple[Detection, ...] | None = None
+    keypoint_visibility: tuple[str, ...] = ()
 
     def as_record(self) -> dict[str, Any]:
         """The ``poses.jsonl`` object of this frame."""
@@ -207,6 +233,7 @@ class TrackingResult:
                 keypoints_2d_px=_rounded(self.keypoints_2d_px, 2),
                 fingertips=list(self.fingertips),
                 confidence=round(self.confidence, 4),
+                keypoint_visibility=list(self.keypoint_visibility),
             )
             if self.fingertip_detections is not None:
                 record["fingertip_detections"] = fingertips_output(self.fingertip_detections)
@@ -264,6 +291,13 @@ class Tracker(Closing):
     color_table : ColorTable, optional
         Defaults to the table from the glove pattern's nominal colors.
 
+    Attributes
+    ----------
+    mesh : HandMesh
+        The hand model with the current proportions (the user's once estimated).
+    skeleton : Skeleton
+        Its skeleton.
+
     Notes
     -----
     While a tracker is open, BLAS runs on one thread in this process
@@ -280,12 +314,18 @@ class Tracker(Closing):
         self.settings = settings or TrackerSettings()
         self.fingertips = _fingertip_detector(self.settings.fingertip_model)
         self.index = DatabaseIndex(database)
-        hand_length = self.index.hand_length_m
         pattern = load_pattern()
         self.color_table = color_table or nominal_table(pattern)
-        self.skeleton = make_skeleton(hand_length)
-        self.mesh = make_hand_mesh(self.skeleton, spacing_m=self.settings.mesh_spacing_m)
-        self.split = split_by_label(self.mesh, pattern)
+        self.model_mesh = make_hand_mesh(
+            make_skeleton(self.index.hand_length_m), spacing_m=self.settings.mesh_spacing_m
+        )
+        self.split = split_by_label(self.model_mesh, pattern)
+        self.prior = load_posture_prior()
+        self._model_samples = hand_samples(self.model_mesh, self.split)
+        self._set_proportions(self.settings.hand_proportions or HandProportions())
+        self._calibrated = (
+            0 if self.settings.hand_proportions is None else self.settings.calibration_frames
+        )
         self._smoother = PoseSmoother(self.settings.smoothing_frames)
         self._sizes = self.index.resolutions
         self.cascade = self.settings.cascade or default_cascade(self._sizes)
@@ -297,10 +337,27 @@ class Tracker(Closing):
         )  # every stage keeps at least as many as the widened last one
         parse_cascade(self._search_cascade, sizes=self._sizes)
         self._previous_posture: NDArray[np.float64] | None = None
+        self._previous: PosedHand | None = None
+        self._since_lookup = 0
         # One BLAS thread while this tracker lives (see glovedb._threads); set last,
         # so that a tracker that fails to open leaves the process as it was.
         self._blas_limit = single_threaded_blas()
         self._warm_up()
+
+    @property
+    def proportions(self) -> HandProportions:
+        """The hand proportions in use (the estimate so far while calibrating)."""
+        return self.samples.proportions
+
+    @property
+    def calibrating(self) -> bool:
+        """Whether the hand proportions are still being estimated."""
+        return self._calibrated < self.settings.calibration_frames
+
+    def _set_proportions(self, proportions: HandProportions) -> None:
+        self.samples = self._model_samples.with_proportions(proportions)
+        self.mesh = proportioned_mesh(self.model_mesh, proportions)
+        self.skeleton = self.mesh.skeleton
 
     def _warm_up(self) -> None:
         """Run the compiled kernels once, so the first frame is not slow (numba loads
@@ -308,7 +365,7 @@ class Tracker(Closing):
         square = np.stack(np.meshgrid(np.arange(8.0), np.arange(8.0)), -1).reshape(-1, 2)
         stacks = tiny_images_from_pixels(square, np.ones(len(square), np.uint8), self._sizes)
         self.index.search({size: stack[0] for size, stack in stacks.items()}, self._search_cascade)
-        vertex_normals(self.mesh.rest_vertices_m, self.mesh.faces)
+        vertex_normals(self.model_mesh.rest_vertices_m, self.model_mesh.faces)
 
     def track(self, frame: Frame) -> TrackingResult:
         """Estimate the hand in one frame (see the module docstring)."""
@@ -318,17 +375,106 @@ class Tracker(Closing):
         def lap(stage: str) -> None:
             nonlocal clock
             now = time.perf_counter()
-            timing[stage] = (now - clock) * 1000.0
+            timing[stage] = timing.get(stage, 0.0) + (now - clock) * 1000.0
             clock = now
 
         labels = self.color_table.classify(frame.color)
         lap("classify")
         region = hand_region(labels, frame.depth_m, z_range_m=self.settings.z_range_m)
         cloud = labeled_point_cloud(region, frame.intrinsics)
-        lap("segment")
         if len(region) < self.settings.min_glove_pixels or len(cloud) < 30:
+            lap("segment")
             return self._not_found(frame, timing, started)
+        observation = observe(
+            region, cloud, frame.depth_m, frame.intrinsics, max_points=self.settings.fit.max_points
+        )
+        lap("segment")
 
+        starts: list[HandPose] = []
+        if self._previous is not None:
+            starts.append(self._previous.pose)
+        detections, tip_targets = None, None
+        fits: list[FrameFit] = []
+        if starts and self.fingertips is not None:
+            detections = self._named_detections(frame, starts[0])
+            tip_targets = tip_targets_of(detections)
+            lap("fingertips")
+        if starts:
+            fits.append(self._fit(observation, starts[0], tip_targets))
+            lap("fit")
+        self._since_lookup += 1
+        if (
+            not fits
+            or not self._trusted(fits[0])
+            or self._since_lookup >= self.settings.reinit_every
+        ):
+            self._since_lookup = 0
+            looked_up = self._lookup_start(frame, region, cloud, lap)
+            if looked_up is not None:
+                if self.fingertips is not None and detections is None:
+                    detections = self._named_detections(frame, looked_up)
+                    tip_targets = tip_targets_of(detections)
+                    lap("fingertips")
+                fits.append(self._fit(observation, looked_up, tip_targets))
+                lap("fit")
+        trusted = [fit for fit in fits if self._trusted(fit)]
+        if not trusted:
+            return self._not_found(frame, timing, started)
+        best = min(trusted, key=lambda fit: fit.energy)
+        if self.calibrating:
+            self._set_proportions(best.proportions)
+            self._calibrated += 1
+        hand = PosedHand(self.samples, best.pose)
+        self._previous = hand
+        posture, rotation, translation = self._smoother(
+            best.pose.posture_rad, best.pose.rotation, best.pose.translation_m
+        )
+        self._previous_posture = posture
+        confidence = fit_quality(best.matched, best.outside, best.rms_m)
+        result = self._result(frame, posture, rotation, translation, confidence)
+        result["keypoint_visibility"] = keypoint_visibility(
+            hand, frame.depth_m, frame.intrinsics.pinhole,
+            margin_m=self.settings.fit.depth_margin_m,
+        )  # fmt: skip
+        lap("fit")
+        timing["total"] = (time.perf_counter() - started) * 1000.0
+        return TrackingResult(**result, timing_ms=timing, fingertip_detections=detections)
+
+    def reset(self) -> None:
+        """Forget the past frames (start of a new sequence); keep the proportions."""
+        self._smoother.reset()
+        self._previous_posture = None
+        self._previous = None
+        self._since_lookup = 0
+
+    def _trusted(self, fit: FrameFit) -> bool:
+        """Whether a fit explains the observed hand well enough to report it."""
+        s = self.settings
+        return (
+            fit.matched >= s.min_matched
+            and fit.outside <= s.max_outside
+            and fit.rms_m <= s.max_rms_m
+        )
+
+    def _fit(
+        self, observation: Observation, start: HandPose, tip_targets: NDArray[np.float64] | None
+    ) -> FrameFit:
+        previous = None if self._previous is None else self._previous.keypoints_m
+        return fit_frame(
+            self.samples, observation, start, settings=self.settings.fit, prior=self.prior,
+            previous_keypoints_m=previous, tip_targets_m=tip_targets,
+            estimate_proportions=self.calibrating,
+        )  # fmt: skip
+
+    def _lookup_start(
+        self,
+        frame: Frame,
+        region: HandRegion,
+        cloud: LabeledPointCloud,
+        lap: Callable[[str], None],
+    ) -> HandPose | None:
+        """The database's posture and rotation, aligned by color ICP; None when the
+        lookup or the alignment finds nothing glove-like (:func:`fit_confidence`)."""
         stacks = tiny_images_from_pixels(
             region.pixels_uv.astype(np.float64), region.labels, self._sizes
         )
@@ -349,8 +495,7 @@ class Tracker(Closing):
         )
         lap("lookup")
         if not pose.valid:
-            return self._not_found(frame, timing, started)
-
+            return None
         posture = pose.posture_rad
         centre_px = region.pixels_uv.mean(axis=0)
         rotation = _ray_rotation(frame.intrinsics, centre_px) @ pose.rotation
@@ -371,54 +516,18 @@ class Tracker(Closing):
             iterations=self.settings.icp_iterations,
         )
         lap("icp")
-        confidence = fit_confidence(float(search.errors[order[0]]), icp)
-        if confidence < self.settings.min_confidence:
-            return self._not_found(frame, timing, started)
-        rotation, translation = icp.rotation, icp.translation_m
-        tip_targets, detections = None, None
-        if self.fingertips is not None:
-            detections = self._named_detections(frame, posture, rotation, translation)
-            tip_targets = tip_targets_of(detections)
-            lap("fingertips")
-        if self.settings.refine_iterations > 0:
-            step = max(1, len(cloud) // self.settings.refine_max_points)
-            refined = refine(
-                cloud.points_m[::step], cloud.labels[::step], self.mesh, self.split,
-                posture, rotation, translation,
-                iterations=self.settings.refine_iterations, prior_weight=self.settings.refine_prior,
-                start_surface=(surface, normals), tip_targets_m=tip_targets,
-                tip_weight=self.settings.fingertip_weight,
-                tip_deadband_m=self.settings.fingertip_deadband_m,
-            )  # fmt: skip
-            posture, rotation, translation = (
-                refined.posture_rad,
-                refined.rotation,
-                refined.translation_m,
-            )
-            lap("refine")
-        posture, rotation, translation = self._smoother(posture, rotation, translation)
-        self._previous_posture = posture
-        result = self._result(frame, posture, rotation, translation, confidence)
-        timing["total"] = (time.perf_counter() - started) * 1000.0
-        return TrackingResult(**result, timing_ms=timing, fingertip_detections=detections)
+        if fit_confidence(float(search.errors[order[0]]), icp) < self.settings.min_confidence:
+            return None
+        return HandPose(posture, icp.rotation, icp.translation_m)
 
-    def reset(self) -> None:
-        """Forget the past frames (start of a new sequence)."""
-        self._smoother.reset()
-        self._previous_posture = None
-
-    def _named_detections(
-        self,
-        frame: Frame,
-        posture: NDArray[np.float64],
-        rotation: NDArray[np.float64],
-        translation: NDArray[np.float64],
-    ) -> tuple[Detection, ...]:
+    def _named_detections(self, frame: Frame, pose: HandPose) -> tuple[Detection, ...]:
         """Fingertips detected in the frame's depth, named by Eq. 11 against the
-        fingertips of the model posed with ``posture`` at ``rotation``, ``translation``."""
+        fingertips of the model at ``pose``."""
         assert self.fingertips is not None
-        tips = self._posed_keypoints(posture, rotation, translation)[list(FINGERTIP_KEYPOINTS)]
-        return self.fingertips.detect(frame.depth_m, frame.intrinsics.pinhole, model_tips_m=tips)
+        tips = self._posed_keypoints(pose.posture_rad, pose.rotation, pose.translation_m)
+        return self.fingertips.detect(
+            frame.depth_m, frame.intrinsics.pinhole, model_tips_m=tips[list(FINGERTIP_KEYPOINTS)]
+        )
 
     def _posed_keypoints(
         self,
@@ -485,6 +594,13 @@ class Tracker(Closing):
     def close(self) -> None:
         self.index.close()
         self._blas_limit.restore_original_limits()
+
+
+def fit_quality(matched: float, outside: float, rms_m: float) -> float:
+    """Confidence in [0, 1] of a generative fit: the share of the observed glove points
+    it explains, times the share of its visible surface the camera sees, times
+    ``exp(-rms / 5 mm)`` of the paired points' distance to the surface."""
+    return float(max(0.0, matched) * max(0.0, 1.0 - outside) * np.exp(-rms_m / 0.005))
 
 
 def temporal_scores(

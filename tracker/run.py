@@ -8,7 +8,9 @@ The folder gets
 - ``overlay.mp4`` (or a PNG sequence where the codec is missing): the color frames
   with the model's outline, skeleton and fingertips;
 - ``hand.bvh``: the skeleton's motion for animation tools;
-- ``timing.json``: per-stage median and p95 milliseconds, and the frame rate.
+- ``timing.json``: per-stage median and p95 milliseconds, and the frame rate;
+- ``hand.json``: the hand proportions the tracker ended with (estimated online over
+  the first frames unless given), which ``--hand`` takes back.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from glovedb.proportions import save_proportions
 from tracker.bvh import pose_arrays, write_bvh
 from tracker.frames import Frame
 from tracker.overlay import (
@@ -33,6 +36,7 @@ from tracker.pipeline import Tracker
 from tracker.sources import Source
 
 POSES_FILE = "poses.jsonl"
+HAND_FILE = "hand.json"
 
 
 @dataclass(frozen=True)
@@ -80,7 +84,7 @@ class RunSummary:
 def _remove_earlier_outputs(folder: Path) -> None:
     """Delete what an earlier run wrote into ``folder``, so that no output of it (an
     overlay or BVH this run does not write) passes for this run's."""
-    for name in (POSES_FILE, "overlay.mp4", "hand.bvh", "timing.json"):
+    for name in (POSES_FILE, "overlay.mp4", "hand.bvh", "timing.json", HAND_FILE):
         (folder / name).unlink(missing_ok=True)
     frames = frames_folder(folder / "overlay.mp4")  # VideoWriter's PNG fallback
     if frames.is_dir():
@@ -157,6 +161,16 @@ def track_source(
             fps=fps, skeleton=tracker.skeleton, found=arrays.found,
         )  # fmt: skip
         outputs["bvh"] = str(path)
+    outputs["hand"] = str(
+        save_proportions(
+            folder / HAND_FILE,
+            tracker.proportions,
+            extra={
+                "source": "given" if tracker.settings.hand_proportions else "estimated online",
+                "complete": not tracker.calibrating,
+            },
+        )
+    )
     timing = timing_summary(r["timing_ms"] for r in records)
     summary = RunSummary(
         frames=len(records),

@@ -74,11 +74,21 @@ def add_tracker_options(parser: argparse.ArgumentParser) -> None:
         help="color table (.npz) from glove calibrate (default: DB.colors.npz if present)",
     )
     parser.add_argument("--icp-stride", type=int, help="use every n-th point in ICP")
-    parser.add_argument("--no-smoothing", action="store_true", help="turn temporal smoothing off")
     parser.add_argument(
-        "--refine-iterations",
+        "--no-smoothing",
+        action="store_true",
+        help="turn the fit's temporal term and the posture smoother off",
+    )
+    parser.add_argument(
+        "--fit-iterations",
         type=int,
-        help="steps of the posture refinement (default 3; 0 turns it off)",
+        help="Levenberg-Marquardt steps of the generative fit per start (default 6)",
+    )
+    parser.add_argument(
+        "--hand",
+        metavar="FILE",
+        help="the user's hand proportions (hand.json of an earlier run): skip their "
+        "online estimation over the first frames",
     )
     parser.add_argument(
         "--temporal-prior",
@@ -95,7 +105,7 @@ def add_tracker_options(parser: argparse.ArgumentParser) -> None:
         "--fingertips",
         action="store_true",
         help="detect fingertips in the depth (the shipped model) and let them pull the "
-        "model's fingertips in the refinement",
+        "model's fingertips in the generative fit",
     )
     parser.add_argument(
         "--fingertip-model",
@@ -105,7 +115,8 @@ def add_tracker_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--fingertip-weight",
         type=float,
-        help="weight of a detected fingertip in the refinement (default 4; needs --fingertips)",
+        help="weight of a detected fingertip in the generative fit, per metre (default 300; "
+        "needs --fingertips)",
     )
 
 
@@ -114,6 +125,7 @@ def make_tracker(args: argparse.Namespace) -> Tracker:
     from dataclasses import replace
 
     from glove_cli.commands.calibrate import default_table_path
+    from glovedb.proportions import load_proportions
     from tracker.classify import load_table
     from tracker.pipeline import Tracker, TrackerSettings
 
@@ -125,11 +137,15 @@ def make_tracker(args: argparse.Namespace) -> Tracker:
             raise ValueError(f"--icp-stride: expected 1 to 64, got {args.icp_stride}")
         settings = replace(settings, icp_stride=args.icp_stride)
     if args.no_smoothing:
-        settings = replace(settings, smoothing_frames=1)
-    if args.refine_iterations is not None:
-        if not 0 <= args.refine_iterations <= 50:
-            raise ValueError(f"--refine-iterations: expected 0 to 50, got {args.refine_iterations}")
-        settings = replace(settings, refine_iterations=args.refine_iterations)
+        settings = replace(
+            settings, smoothing_frames=1, fit=replace(settings.fit, temporal_weight=0.0)
+        )
+    if args.fit_iterations is not None:
+        if not 1 <= args.fit_iterations <= 50:
+            raise ValueError(f"--fit-iterations: expected 1 to 50, got {args.fit_iterations}")
+        settings = replace(settings, fit=replace(settings.fit, iterations=args.fit_iterations))
+    if args.hand is not None:
+        settings = replace(settings, hand_proportions=load_proportions(args.hand))
     if args.temporal_prior is not None:
         if not 0 <= args.temporal_prior < math.inf:
             raise ValueError(f"--temporal-prior: expected 0 or more, got {args.temporal_prior}")
@@ -145,7 +161,9 @@ def make_tracker(args: argparse.Namespace) -> Tracker:
             raise ValueError("--fingertip-weight: needs --fingertips or --fingertip-model")
         if not 0 <= args.fingertip_weight < math.inf:
             raise ValueError(f"--fingertip-weight: expected 0 or more, got {args.fingertip_weight}")
-        settings = replace(settings, fingertip_weight=args.fingertip_weight)
+        settings = replace(
+            settings, fit=replace(settings.fit, fingertip_weight=args.fingertip_weight)
+        )
     colors = args.colors
     beside = default_table_path(args.db)
     if colors is None and beside.exists():

@@ -57,7 +57,7 @@ def test_frames_without_a_glove_give_no_hand_on_every_frame(small_database, tmp_
     (out / "hand.bvh").write_text("an earlier run's motion")
     argv = ["--db", str(small_database), "--out", str(out), "--no-overlay", "--no-bvh"]
     assert run_glove("track", str(sequence), *argv).returncode == 0
-    assert sorted(p.name for p in out.iterdir()) == ["poses.jsonl", "timing.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["hand.json", "poses.jsonl", "timing.json"]
 
 
 @pytest.mark.gl
@@ -91,7 +91,7 @@ def test_bad_databases_and_inputs_exit_2(small_database, tmp_path):
     for option, value, message in (
         ("--min-confidence", "2", "--min-confidence: expected 0 to 1"),
         ("--icp-stride", "0", "--icp-stride: expected 1 to 64"),
-        ("--refine-iterations", "100000", "--refine-iterations: expected 0 to 50"),
+        ("--fit-iterations", "100000", "--fit-iterations: expected 1 to 50"),
         ("--cascade", "8:0", "cascade: size and k must be positive, got 8:0"),
         ("--temporal-prior", "inf", "--temporal-prior: expected 0 or more"),
         ("--fingertip-weight", "2", "--fingertip-weight: needs --fingertips"),

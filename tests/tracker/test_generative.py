@@ -1,0 +1,266 @@
+"""The generative fit: model Jacobians, every energy term's Jacobian, the solver,
+tracking-loss signals and the estimation of a user's hand proportions.
+
+Observations here are made from the model's own samples (no OpenGL): the camera-facing
+samples of a hand in a known pose are the observed glove points, their pixels the
+observed hand mask and their depth the observed depth.
+"""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from glovedb.camera import KINECT_V1
+from glovedb.hand_model import JOINT_NAMES, make_skeleton
+from glovedb.mesh import make_hand_mesh
+from glovedb.pattern import load_pattern, split_by_label
+from glovedb.posture_prior import fit_posture_prior, load_posture_prior
+from glovedb.postures import named_posture
+from glovedb.proportions import HandProportions
+from glovedb.rotations import axis_angle_to_matrix, geodesic_angle
+from tracker.generative.energy.collision import collision_residuals
+from tracker.generative.energy.data import data_residuals
+from tracker.generative.energy.fingertips import fingertip_residuals
+from tracker.generative.energy.limits import limit_residuals
+from tracker.generative.energy.prior import prior_residuals
+from tracker.generative.energy.silhouette import silhouette_residuals
+from tracker.generative.energy.temporal import temporal_residuals
+from tracker.generative.fit import FitSettings, fit_frame
+from tracker.generative.model import KEYPOINT_BONES, N_PARAMS, HandPose, PosedHand, hand_samples
+from tracker.generative.observation import observe
+from tracker.generative.solver import levenberg_marquardt
+from tracker.point_cloud import HandRegion, LabeledPointCloud
+
+BACK_TO_CAMERA = np.diag([1.0, -1.0, -1.0])
+
+
+@pytest.fixture(scope="module")
+def samples():
+    mesh = make_hand_mesh(make_skeleton(), spacing_m=0.003)
+    return hand_samples(mesh, split_by_label(mesh, load_pattern()))
+
+
+def _pose(posture="pinch", axis=(0.3, 1.0, 0.2), angle=0.5, at=(0.01, 0.02, 0.55)):
+    turn = axis_angle_to_matrix(np.array(axis) / np.linalg.norm(axis), angle)
+    return HandPose.of(named_posture(posture), turn @ BACK_TO_CAMERA, at)
+
+
+def _observation(samples, pose):
+    """What a camera sees of the model in ``pose`` (module docstring)."""
+    hand = PosedHand(samples, pose)
+    facing = np.einsum("ij,ij->i", hand.normals, hand.points_m) < 0
+    points = hand.points_m[facing]
+    labels = samples.labels[facing]
+    uv = np.rint(KINECT_V1.project(points)).astype(np.int64)
+    depth = np.zeros((KINECT_V1.height, KINECT_V1.width), np.float32)
+    order = np.argsort(-points[:, 2])  # nearest written last
+    depth[uv[order, 1], uv[order, 0]] = points[order, 2]
+    region = HandRegion(uv, labels, points[:, 2].astype(np.float32))
+    cloud = LabeledPointCloud(points.astype(np.float32), labels)
+    return observe(region, cloud, depth, KINECT_V1, max_points=600)
+
+
+def _numeric(function, pose, columns=range(N_PARAMS), eps=1e-6):
+    """Central differences of ``function(pose) -> (M,)`` by the 26 unknowns."""
+    out = []
+    for k in columns:
+        step = np.zeros(N_PARAMS)
+        step[k] = eps
+        out.append((function(pose.step(step)) - function(pose.step(-step))) / (2 * eps))
+    return np.stack(out, axis=1)
+
+
+def test_model_jacobians_match_central_differences(samples):
+    pose = _pose("power")
+    hand = PosedHand(samples, pose)
+    ids = np.arange(0, len(samples), 53)
+    numeric = _numeric(lambda p: PosedHand(samples, p).points_m[ids].ravel(), pose)
+    np.testing.assert_allclose(hand.vertex_jacobian(ids).reshape(-1, N_PARAMS), numeric, atol=1e-6)
+    numeric = _numeric(lambda p: PosedHand(samples, p).keypoints_m.ravel(), pose)
+    keypoints = hand.keypoint_jacobian(np.arange(21)).reshape(-1, N_PARAMS)
+    np.testing.assert_allclose(keypoints, numeric, atol=1e-6)
+    on_bones = hand.bone_point_jacobian(hand.keypoints_m, KEYPOINT_BONES).reshape(-1, N_PARAMS)
+    np.testing.assert_allclose(on_bones, numeric, atol=1e-6)
+
+
+def test_proportion_jacobian_matches_central_differences(samples):
+    pose = _pose("open")
+    stretched = samples.with_proportions(HandProportions(1.05, (1.1, 1.0, 0.95, 1.0, 1.2), 1.1))
+    hand = PosedHand(stretched, pose)
+    ids = np.arange(0, len(samples), 97)
+    base = stretched.proportions.as_vector()
+    numeric = []
+    for k in range(7):
+        up, down = base.copy(), base.copy()
+        up[k] += 1e-6
+        down[k] -= 1e-6
+        moved = [
+            PosedHand(samples.with_proportions(HandProportions.from_vector(v)), pose).points_m[ids]
+            for v in (up, down)
+        ]
+        numeric.append((moved[0] - moved[1]) / 2e-6)
+    np.testing.assert_allclose(hand.proportion_jacobian(ids), np.stack(numeric, 2), atol=2e-3)
+
+
+def _check_term(make, pose, *, atol=1e-6, rtol=1e-4):
+    """The term's Jacobian against central differences of its residuals."""
+    residuals = make(pose)
+    assert len(residuals) > 0, "the case must exercise the term"
+    numeric = _numeric(lambda p: make(p).values, pose)
+    np.testing.assert_allclose(residuals.jacobian, numeric, atol=atol, rtol=rtol)
+
+
+def test_data_term_jacobian(samples):
+    truth = _pose("pinch")
+    observation = _observation(samples, truth)
+    start = truth.step(np.r_[0.01, -0.01, 0.0, 0.002, 0.0, 0.001, np.zeros(20)])
+
+    def make(pose):
+        return data_residuals(
+            PosedHand(samples, pose), observation.points_m, observation.labels,
+            weight=1000.0, huber_m=1.0, gate_m=0.03,
+        )[0]  # fmt: skip
+
+    # The Jacobian leaves out the normals' turn (a few per cent) and the differences
+    # see the rare pair whose partner changes within the step: nearly all agree.
+    residuals = make(start)
+    numeric = _numeric(lambda p: make(p).values, start)
+    close = np.isclose(residuals.jacobian, numeric, atol=0.05, rtol=0.05)
+    assert close.mean() > 0.995
+
+
+def test_silhouette_term_pulls_in_the_model_and_ignores_what_is_hidden(samples):
+    truth = _pose("open")
+    observation = _observation(samples, truth)
+    shifted = truth.step(np.r_[0, 0, 0, 0.03, 0, 0, np.zeros(20)])  # 3 cm to the right
+    settings = dict(weight=300.0, margin_px=2.0, depth_margin_m=0.012, max_samples=400)
+    at_truth, outside_truth = silhouette_residuals(
+        PosedHand(samples, truth), observation, **settings
+    )
+    moved, outside = silhouette_residuals(PosedHand(samples, shifted), observation, **settings)
+    assert outside_truth < 0.02 and at_truth.energy < 1e-3
+    assert outside > 0.1
+    # The pull points back: one Gauss-Newton step on x reduces the energy.
+    step = -np.linalg.lstsq(moved.jacobian[:, 3:4], moved.values, rcond=None)[0]
+    assert step[0] < -0.005
+    # The same model behind a nearer object (depth 0.2 m everywhere) costs nothing.
+    hidden = replace(observation, depth_m=np.full_like(observation.depth_m, 0.2))
+    assert silhouette_residuals(PosedHand(samples, shifted), hidden, **settings)[0].energy == 0
+
+
+def test_prior_limits_temporal_and_fingertip_jacobians(samples):
+    pose = _pose("power")
+    prior = load_posture_prior()
+    _check_term(lambda p: prior_residuals(PosedHand(samples, p), prior, weight=0.3), pose)
+    beyond = HandPose(
+        pose.posture_rad + np.radians(120.0) * (np.arange(20) % 3 == 1),
+        pose.rotation,
+        pose.translation_m,
+    )
+    _check_term(lambda p: limit_residuals(PosedHand(samples, p), weight=30.0), beyond)
+    previous = PosedHand(samples, _pose("open")).keypoints_m
+    _check_term(
+        lambda p: temporal_residuals(PosedHand(samples, p), previous, weight=100.0, scale_m=1e9),
+        pose,
+    )
+    targets = PosedHand(samples, pose).keypoints_m[[4, 8, 12, 16, 20]] + 0.03
+    targets[2] = np.nan
+    _check_term(
+        lambda p: fingertip_residuals(PosedHand(samples, p), targets, weight=300.0, deadband_m=0.0),
+        pose,
+    )
+
+
+def test_collision_term_pushes_crossed_fingers_apart(samples):
+    crossed = named_posture("open")
+    crossed[JOINT_NAMES.index("index_mcp_abd")] = np.radians(-20)
+    crossed[JOINT_NAMES.index("middle_mcp_abd")] = np.radians(20)
+    pose = HandPose(crossed, _pose().rotation, _pose().translation_m)
+    residuals = collision_residuals(PosedHand(samples, pose), weight=300.0)
+    assert len(residuals) > 0
+    assert len(collision_residuals(PosedHand(samples, _pose("open")), weight=300.0)) == 0
+    # The Jacobian leaves out how the cones' radii change as the closest points slide.
+    _check_term(
+        lambda p: collision_residuals(PosedHand(samples, p), weight=300.0),
+        pose,
+        atol=0.2,
+        rtol=0.05,
+    )
+    # A damped Gauss-Newton step separates the fingers.
+    step = -0.5 * np.linalg.lstsq(residuals.jacobian, residuals.values, rcond=None)[0]
+    after = collision_residuals(PosedHand(samples, pose.step(step)), weight=300.0)
+    assert after.energy < 0.9 * residuals.energy
+
+
+def test_prior_is_the_gaussian_of_its_examples():
+    rng = np.random.default_rng(0)
+    examples = rng.normal(0.3, 0.2, size=(5000, 20))
+    prior = fit_posture_prior(examples, floor_deg=1e-3)
+    np.testing.assert_allclose(prior.mean_rad, 0.3, atol=0.02)
+    whitened = (examples - prior.mean_rad) @ prior.whitening.T
+    np.testing.assert_allclose(np.cov(whitened, rowvar=False), np.eye(20), atol=1e-6)
+    with pytest.raises(ValueError, match="floor_deg"):
+        fit_posture_prior(examples, floor_deg=0)
+
+
+def test_solver_minimises_a_known_least_squares_problem():
+    # Rosenbrock as residuals (1 - x, 10 (y - x^2)): minimum at (1, 1).
+    def evaluate(x):
+        return np.array([1 - x[0], 10 * (x[1] - x[0] ** 2)]), np.array(
+            [[-1.0, 0.0], [-20 * x[0], 10.0]]
+        )
+
+    result = levenberg_marquardt(
+        evaluate, lambda x, d: x + d, np.array([-1.2, 1.0]), iterations=100
+    )
+    np.testing.assert_allclose(result.state, [1.0, 1.0], atol=1e-4)
+    assert result.energy < 1e-8 < result.start_energy
+
+
+def test_fit_recovers_a_perturbed_pose_and_posture(samples):
+    truth = _pose("pinch")
+    observation = _observation(samples, truth)
+    wrong = HandPose(
+        truth.posture_rad + np.radians(8.0) * np.sin(np.arange(20)),
+        axis_angle_to_matrix(np.array([0.0, 1.0, 0.0]), np.radians(8.0)) @ truth.rotation,
+        truth.translation_m + [0.01, -0.008, 0.01],
+    )
+    fit = fit_frame(
+        samples, observation, wrong, settings=FitSettings(iterations=25), prior=load_posture_prior()
+    )
+    assert geodesic_angle(fit.pose.rotation, truth.rotation) < np.radians(1.5)
+    assert np.linalg.norm(fit.pose.translation_m - truth.translation_m) < 0.002
+    keypoints = PosedHand(samples, fit.pose).keypoints_m - PosedHand(samples, truth).keypoints_m
+    assert np.sqrt(np.mean(np.sum(keypoints**2, axis=1))) < 0.004
+    assert fit.matched > 0.95 and fit.outside < 0.05 and fit.energy < fit.start_energy
+
+
+def test_a_fit_far_from_the_data_explains_little(samples):
+    """The signals the tracker's loss detection reads: a hand fitted to the wrong
+    place pairs few points and shows much surface where the camera sees none."""
+    truth = _pose("open")
+    observation = _observation(samples, truth)
+    far = HandPose(named_posture("fist"), truth.rotation, truth.translation_m + [0.12, 0.0, 0.0])
+    fit = fit_frame(
+        samples, observation, far, settings=FitSettings(iterations=2), prior=load_posture_prior()
+    )
+    assert fit.matched < 0.5 or fit.outside > 0.3
+
+
+def test_proportions_are_recovered_from_frames_of_a_larger_hand(samples):
+    truth = HandProportions(1.1, (1.0, 1.12, 1.12, 1.12, 1.12), 1.0)
+    person = samples.with_proportions(truth)
+    estimate = samples
+    prior = load_posture_prior()
+    settings = FitSettings(iterations=8, temporal_weight=0.0)
+    poses = [_pose(name, angle=a) for name in ("open", "pinch", "open") for a in (0.2, 0.6, -0.4)]
+    for pose in poses:
+        fit = fit_frame(
+            estimate, _observation(person, pose), pose, settings=settings, prior=prior,
+            estimate_proportions=True,
+        )  # fmt: skip
+        estimate = estimate.with_proportions(fit.proportions)
+    found = estimate.proportions.as_vector()
+    assert abs(found[0] - 1.1) < 0.03
+    assert np.all(np.abs(found[2:5] * found[0] - 1.12 * 1.1) < 0.06)

@@ -1,0 +1,112 @@
+"""Levenberg-Marquardt for the generative fit's sum of squares.
+
+The problem is given by two functions: ``evaluate(state)`` returns the stacked
+residuals ``r (M,)`` and their Jacobian ``J (M, K)`` at a state, ``advance(state,
+delta)`` applies a step ``delta (K,)``. Each iteration solves::
+
+    (J^T J + lambda * (diag(J^T J) + eps)) delta = -J^T r
+
+and keeps the step only if the energy ``r^T r`` at the new state (residuals and
+correspondences evaluated afresh) is lower; lambda shrinks after a kept step and
+grows after a refused one (Marquardt's scaling makes it unit-free). A refused step
+costs one evaluation, a kept one is the next iteration's linearisation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Generic, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+State = TypeVar("State")
+Evaluation = tuple[NDArray[np.float64], NDArray[np.float64]]
+
+_EPS = 1e-9
+_SHRINK, _GROW = 0.3, 5.0
+
+
+@dataclass(frozen=True)
+class SolverResult(Generic[State]):
+    """Outcome of :func:`levenberg_marquardt`.
+
+    Attributes
+    ----------
+    state : State
+        The lowest-energy state found.
+    energy : float
+        Its ``r^T r``.
+    start_energy : float
+    iterations : int
+        Linear solves done.
+    converged : bool
+        Whether the last kept step changed the energy by less than the tolerance.
+    """
+
+    state: State
+    energy: float
+    start_energy: float
+    iterations: int
+    converged: bool
+
+
+def levenberg_marquardt(
+    evaluate: Callable[[State], Evaluation],
+    advance: Callable[[State, NDArray[np.float64]], State],
+    start: State,
+    *,
+    iterations: int,
+    damping: float = 1e-3,
+    tolerance: float = 1e-4,
+) -> SolverResult[State]:
+    """Minimise ``r(state)^T r(state)`` (module docstring).
+
+    Parameters
+    ----------
+    evaluate : callable
+        ``state -> (r (M,), J (M, K))``.
+    advance : callable
+        ``(state, delta (K,)) -> state``.
+    start : State
+    iterations : int
+        Most linear solves.
+    damping : float
+        Initial lambda.
+    tolerance : float
+        Relative energy change under which a kept step ends the iterations.
+
+    Returns
+    -------
+    SolverResult
+    """
+    state = start
+    residual, jacobian = evaluate(state)
+    energy = start_energy = float(residual @ residual)
+    converged = False
+    done = 0
+    for iteration in range(1, iterations + 1):
+        done = iteration
+        if len(residual) == 0:
+            break
+        normal = jacobian.T @ jacobian
+        gradient = jacobian.T @ residual
+        damped = normal + damping * (np.diag(np.diag(normal)) + _EPS * np.eye(len(normal)))
+        try:
+            delta = -np.linalg.solve(damped, gradient)
+        except np.linalg.LinAlgError:
+            damping *= _GROW
+            continue
+        candidate = advance(state, delta)
+        new_residual, new_jacobian = evaluate(candidate)
+        new_energy = float(new_residual @ new_residual)
+        if new_energy < energy:
+            converged = energy - new_energy < tolerance * energy
+            state, residual, jacobian, energy = candidate, new_residual, new_jacobian, new_energy
+            damping *= _SHRINK
+            if converged:
+                break
+        else:
+            damping *= _GROW
+    return SolverResult(state, energy, start_energy, done, converged)

@@ -1,0 +1,78 @@
+"""Which keypoints the camera sees: seen, hidden by the hand itself, or by something else.
+
+A keypoint is a joint centre inside the hand, about a finger radius behind the
+surface that faces the camera. The fitted model's camera-facing samples are splatted
+into a coarse depth buffer (cells of ``cell_px`` pixels, the nearest sample wins):
+
+- ``out_of_view``: the keypoint projects outside the image;
+- ``self_occluded``: the model's own surface at the keypoint's cell is nearer than the
+  keypoint by more than ``radius_m`` plus the margin (a finger or the palm in front);
+- ``occluded``: the observed depth there is nearer than the model's surface by more
+  than the margin (an object in front), or the sensor sees nothing of the hand there;
+- ``seen``: otherwise.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from tracker.generative.model import PosedHand
+
+VISIBILITY: tuple[str, ...] = ("seen", "self_occluded", "occluded", "out_of_view")
+
+
+def keypoint_visibility(
+    hand: PosedHand,
+    depth_m: NDArray[np.float32],
+    pinhole: tuple[float, float, float, float],
+    *,
+    radius_m: float = 0.012,
+    margin_m: float = 0.012,
+    cell_px: int = 4,
+) -> tuple[str, ...]:
+    """The visibility of each of the 21 keypoints of a fitted hand (module docstring).
+
+    Parameters
+    ----------
+    hand : PosedHand
+        The fitted model.
+    depth_m : (H, W) float32
+        The frame's observed depth (0: none).
+    pinhole : (fx, fy, cx, cy)
+    radius_m, margin_m : float
+        How far behind the model's front surface a keypoint lies, and the tolerance.
+    cell_px : int
+        Size of a depth-buffer cell, pixels (samples are a few pixels apart).
+
+    Returns
+    -------
+    tuple of str
+        21 entries of :data:`VISIBILITY`.
+    """
+    fx, fy, cx, cy = pinhole
+    height, width = depth_m.shape
+    facing = np.einsum("ij,ij->i", hand.normals, hand.points_m) < 0
+    points = hand.points_m[facing & (hand.points_m[:, 2] > 1e-3)]
+    cells = (-(-height // cell_px), -(-width // cell_px))
+    buffer = np.full(cells, np.inf)
+    u = np.rint(fx * points[:, 0] / points[:, 2] + cx).astype(np.int64)
+    v = np.rint(fy * points[:, 1] / points[:, 2] + cy).astype(np.int64)
+    inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    np.minimum.at(buffer, (v[inside] // cell_px, u[inside] // cell_px), points[inside, 2])
+    flags = []
+    for x, y, z in hand.keypoints_m:
+        ku, kv = round(fx * x / z + cx), round(fy * y / z + cy)
+        if z <= 0 or not (0 <= ku < width and 0 <= kv < height):
+            flags.append("out_of_view")
+            continue
+        surface = buffer[kv // cell_px, ku // cell_px]
+        if surface < z - radius_m - margin_m:
+            flags.append("self_occluded")
+            continue
+        window = depth_m[max(kv - 1, 0) : kv + 2, max(ku - 1, 0) : ku + 2]
+        seen = window[window > 0]
+        front = min(surface, z - radius_m)
+        hidden = len(seen) == 0 or float(np.median(seen)) < front - margin_m
+        flags.append("occluded" if hidden else "seen")
+    return tuple(flags)
