@@ -25,14 +25,25 @@ The hand is composited with a depth test (the nearer surface wins), so a table c
 hide the part of a hand that dips below it. Depth noise is :mod:`builder.depth_noise`,
 color noise :mod:`builder.color_noise`, both under the same preset name.
 
+Conditions a real user brings, each off by default:
+
+- a personal hand: the model stretched by :class:`~glovedb.proportions.HandProportions`
+  (hand length, finger lengths, palm width); the ground truth is that hand's skeleton;
+- an occluder: a ball passing in front of the hand, rendered analytically
+  (:func:`sphere_depth`) and composited with the same depth test before the noise;
+- misregistration: the color image shifted against depth (:func:`shift_image`) before
+  the color noise; the ground truth stays in the depth camera's frame.
+
 Randomness: the background and the sequence's exposure come from
 ``default_rng([seed, 0])``, the noise of frame ``k`` from ``default_rng([seed, 1, k])``;
-so a seed reproduces a sequence and its first frames do not depend on ``frames``.
+so a seed reproduces a sequence and its first frames do not depend on ``frames``
+(unless there is an occluder: its path runs from the first to the last frame).
 """
 
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import tempfile
 import time
@@ -53,8 +64,21 @@ from builder.render import GloveRenderer
 from glovedb import __version__
 from glovedb._validate import as_array, check_choice
 from glovedb.camera import CameraIntrinsics, save_intrinsics
-from glovedb.hand_model import Skeleton, forward_kinematics
+from glovedb.hand_model import (
+    DEFAULT_HAND_LENGTH_M,
+    N_KEYPOINTS,
+    Skeleton,
+    forward_kinematics,
+    make_skeleton,
+)
+from glovedb.mesh import make_hand_mesh
 from glovedb.pattern import GlovePattern, chroma_uv
+from glovedb.proportions import (
+    FACTOR_RANGE,
+    HandProportions,
+    proportioned_mesh,
+    proportioned_skeleton,
+)
 from glovedb.resources import config_files
 from glovedb.trajectory import Trajectory, load_trajectory
 
@@ -79,6 +103,16 @@ MAX_BACKGROUND_CHROMA = 0.6
 """Background colors are no more saturated than this (norm of their chroma): dark,
 saturated colors lie beyond the ring of glove colors, far in chroma but alike to the
 eye."""
+OCCLUDER_FROM_M = (-0.12, 0.0, -0.04)
+"""Default offset of the occluder's centre from the hand's centre at the first frame,
+camera frame, metres: 12 cm to the left of the hand and 4 cm in front of it."""
+OCCLUDER_TO_M = (0.12, 0.0, -0.04)
+"""Default offset at the last frame: 12 cm to the right, 4 cm in front."""
+OCCLUDER_RGB = (170, 164, 156)
+"""sRGB of the lit side of the occluder, a neutral gray-beige: its chroma is more than
+:data:`MIN_GLOVE_CHROMA_DISTANCE` from every glove color at every shade."""
+OCCLUDER_AMBIENT = 0.35
+"""Share of :data:`OCCLUDER_RGB` on the occluder where the light grazes it."""
 
 
 @dataclass(frozen=True)
@@ -101,8 +135,27 @@ class SequenceSettings:
     depth_scale : float
         Depth units per metre in the PNG files.
     min_visible_pixels : int
-        A frame's hand is visible when at least this many pixels show it and at least
-        half of its keypoints project into the image.
+        A frame's hand is visible when at least this many pixels show it (after the
+        depth tests with the background and the occluder) and at least half of its
+        keypoints project into the image.
+    hand_length_m : float or None
+        Wrist crease to the tip of the middle finger, metres; None is the model's
+        :data:`~glovedb.hand_model.DEFAULT_HAND_LENGTH_M` (0.19 m). The whole hand
+        scales by ``hand_length_m / 0.19`` about the wrist (half to twice the model).
+    finger_length : (5,) tuple of float
+        Each finger's length against the model's (after ``hand_length_m``), thumb
+        first, 0.5-2.
+    palm_width : float
+        The palm's width against the model's, 0.5-2.
+    occluder_radius_m : float
+        Radius of a ball passing in front of the hand, metres; 0 is no ball.
+    occluder_from_m, occluder_to_m : (3,) tuple of float
+        The ball's centre relative to the hand's centre (the mean of the frame's 21
+        keypoints) at the first and at the last frame, camera frame, metres; it moves
+        linearly in between.
+    misregistration_px : (2,) tuple of float
+        ``(du, dv)``: the color image's content is shifted by this many pixels
+        (right, down) against depth and the ground truth.
     """
 
     trajectory: str
@@ -113,6 +166,13 @@ class SequenceSettings:
     noise: NoisePreset = "none"
     depth_scale: float = 1000.0
     min_visible_pixels: int = 200
+    hand_length_m: float | None = None
+    finger_length: tuple[float, float, float, float, float] = (1.0, 1.0, 1.0, 1.0, 1.0)
+    palm_width: float = 1.0
+    occluder_radius_m: float = 0.0
+    occluder_from_m: tuple[float, float, float] = OCCLUDER_FROM_M
+    occluder_to_m: tuple[float, float, float] = OCCLUDER_TO_M
+    misregistration_px: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         check_choice("background", self.background, BACKGROUNDS)
@@ -121,6 +181,29 @@ class SequenceSettings:
             raise ValueError(f"frames: expected at least 1, got {self.frames}")
         if not self.depth_scale > 0:
             raise ValueError(f"depth_scale: expected > 0, got {self.depth_scale}")
+        if self.hand_length_m is not None:
+            low, high = (DEFAULT_HAND_LENGTH_M * factor for factor in FACTOR_RANGE)
+            if not low <= self.hand_length_m <= high:
+                raise ValueError(
+                    f"hand_length_m: expected {low:.3f}-{high:.2f} m (half to twice the "
+                    f"model's {DEFAULT_HAND_LENGTH_M} m), got {self.hand_length_m}"
+                )
+        # HandProportions checks the factors and names the one out of range.
+        object.__setattr__(self, "finger_length", self.proportions.finger_length)
+        if not (math.isfinite(self.occluder_radius_m) and self.occluder_radius_m >= 0):
+            raise ValueError(
+                f"occluder_radius_m: expected a radius >= 0 m (0: no occluder), "
+                f"got {self.occluder_radius_m}"
+            )
+        for name, size in (("occluder_from_m", 3), ("occluder_to_m", 3), ("misregistration_px", 2)):
+            vector = as_array(name, getattr(self, name), (size,), np.float64, finite=True)
+            object.__setattr__(self, name, tuple(float(value) for value in vector))
+
+    @property
+    def proportions(self) -> HandProportions:
+        """The hand against the model: ``hand_length_m / 0.19``, fingers and palm."""
+        length = DEFAULT_HAND_LENGTH_M if self.hand_length_m is None else self.hand_length_m
+        return HandProportions(length / DEFAULT_HAND_LENGTH_M, self.finger_length, self.palm_width)
 
     def as_dict(self) -> dict[str, Any]:
         """Every setting, JSON-ready."""
@@ -160,6 +243,9 @@ class FrameTruth:
         Camera frame.
     keypoints_2d_px : (21, 2) float64
         Projections (OpenCV pixel convention).
+    occluded_fraction : float or None
+        Share of the hand's pixels (after the depth test with the background) that the
+        occluder hides, 0-1 (0 when no pixel shows the hand); None without an occluder.
     """
 
     frame: int
@@ -169,13 +255,15 @@ class FrameTruth:
     translation_m: NDArray[np.float64]
     keypoints_3d_m: NDArray[np.float64]
     keypoints_2d_px: NDArray[np.float64]
+    occluded_fraction: float | None = None
 
     def as_record(self) -> dict[str, Any]:
-        """The JSON object of ``groundtruth.jsonl``."""
+        """The JSON object of ``groundtruth.jsonl``; fields that are None are left out."""
         return {
             field.name: value.tolist() if isinstance(value, np.ndarray) else value
             for field in fields(self)
             for value in (getattr(self, field.name),)
+            if value is not None
         }
 
 
@@ -186,11 +274,12 @@ class SyntheticFrame:
     Attributes
     ----------
     color : (H, W, 3) uint8
-        Noisy sRGB.
+        Noisy sRGB (shifted by the misregistration).
     depth_m : (H, W) float32
         Noisy depth, metres, 0 where missing.
     hand_mask : (H, W) bool
-        Pixels where the hand is the nearest surface (before noise).
+        Pixels where the hand is the nearest surface (before noise; in the depth
+        camera's frame, like the ground truth).
     truth : FrameTruth
     """
 
@@ -530,6 +619,161 @@ def hand_visible(
     return bool(hand_mask.sum() >= min_pixels and inside.mean() >= 0.5)
 
 
+def check_renderer_hand(renderer: GloveRenderer, proportions: HandProportions) -> None:
+    """Raise ``ValueError`` unless the renderer's mesh is rigged to the hand of
+    ``proportions`` (the ground truth comes from that mesh's skeleton)."""
+    expected = proportioned_skeleton(make_skeleton(), proportions)
+    actual = renderer.mesh.skeleton
+    same = (
+        math.isclose(actual.hand_length_m, expected.hand_length_m, abs_tol=1e-9)
+        and np.allclose(actual.offsets_m, expected.offsets_m, rtol=0, atol=1e-9)
+        and np.allclose(actual.lengths_m, expected.lengths_m, rtol=0, atol=1e-9)
+    )
+    if not same:
+        raise ValueError(
+            f"renderer: its hand ({actual.hand_length_m:.3f} m) is not the settings' hand "
+            f"{proportions.as_dict()}; give it mesh=proportioned_mesh(make_hand_mesh(), "
+            "settings.proportions)"
+        )
+
+
+def occluder_centres(
+    keypoints_m: ArrayLike, from_m: ArrayLike, to_m: ArrayLike
+) -> NDArray[np.float64]:
+    """Centres of a ball that moves past the hand, one per frame.
+
+    Parameters
+    ----------
+    keypoints_m : (T, 21, 3) float
+        The hand's keypoints in every frame, camera frame; their mean is the hand's
+        centre.
+    from_m, to_m : (3,) float
+        The ball's centre relative to the hand's centre at the first and at the last
+        frame, camera frame, metres; it moves linearly in between.
+
+    Returns
+    -------
+    (T, 3) float64
+        Metres, camera frame.
+    """
+    points = as_array("keypoints_m", keypoints_m, (None, N_KEYPOINTS, 3), np.float64, finite=True)
+    start = as_array("from_m", from_m, (3,), np.float64, finite=True)
+    end = as_array("to_m", to_m, (3,), np.float64, finite=True)
+    fraction = np.linspace(0.0, 1.0, len(points))[:, None]
+    return points.mean(axis=1) + (1 - fraction) * start + fraction * end
+
+
+def _ball_arguments(centre_m: ArrayLike, radius_m: float) -> NDArray[np.float64]:
+    """The checked centre ``(3,)`` of a ball wholly in front of the camera."""
+    centre = as_array("centre_m", centre_m, (3,), np.float64, finite=True)
+    if not (math.isfinite(radius_m) and radius_m > 0):
+        raise ValueError(f"radius_m: expected a radius > 0 m, got {radius_m}")
+    if not centre[2] - radius_m > 0:
+        raise ValueError(
+            f"centre_m: the ball (z = {centre[2]:.3f} m, radius {radius_m} m) must lie "
+            "wholly in front of the camera"
+        )
+    return centre
+
+
+def sphere_depth(
+    camera: CameraIntrinsics, centre_m: ArrayLike, radius_m: float
+) -> NDArray[np.float32]:
+    """Exact depth image of a ball: where each pixel's ray first meets it.
+
+    The ray through pixel ``(u, v)`` is ``z * d`` with ``d = ((u - cx) / fx,
+    (v - cy) / fy, 1)``; it meets the sphere ``|p - c| = r`` where
+    ``|d|² z² - 2 (d · c) z + |c|² - r² = 0``, first at the smaller root.
+
+    Parameters
+    ----------
+    camera : CameraIntrinsics
+    centre_m : (3,) float
+        The ball's centre, camera frame, metres.
+    radius_m : float
+        Metres; the ball must lie wholly in front of the camera (``z - r > 0``).
+
+    Returns
+    -------
+    (H, W) float32
+        Distance along the optical axis (z), metres; 0 where the ray misses the ball.
+    """
+    c = _ball_arguments(centre_m, radius_m)
+    v, u = np.indices((camera.height, camera.width), dtype=np.float64)
+    x = (u - camera.cx) / camera.fx
+    y = (v - camera.cy) / camera.fy
+    a = x * x + y * y + 1.0
+    b = x * c[0] + y * c[1] + c[2]
+    k = float(c @ c) - radius_m**2  # > 0: the camera is outside the ball
+    discriminant = b * b - a * k
+    hit = discriminant > 0
+    depth = np.zeros_like(a)
+    # The smaller root (b - sqrt(disc)) / a, written without cancellation.
+    depth[hit] = k / (b[hit] + np.sqrt(discriminant[hit]))
+    return depth.astype(np.float32)
+
+
+def sphere_image(
+    camera: CameraIntrinsics, centre_m: ArrayLike, radius_m: float
+) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    """A Lambert-shaded ball lit from the camera, and its depth.
+
+    Parameters
+    ----------
+    camera : CameraIntrinsics
+    centre_m : (3,) float
+        Camera frame, metres.
+    radius_m : float
+        Metres; the ball must lie wholly in front of the camera.
+
+    Returns
+    -------
+    color : (H, W, 3) uint8
+        :data:`OCCLUDER_RGB` times ``ambient + (1 - ambient) * cos`` of the angle
+        between the surface normal and the direction to the camera (0 off the ball).
+    depth_m : (H, W) float32
+        :func:`sphere_depth`.
+    """
+    centre = _ball_arguments(centre_m, radius_m)
+    depth = sphere_depth(camera, centre, radius_m)
+    v, u = np.nonzero(depth > 0)
+    points = camera.back_project(np.stack([u, v], -1), depth[v, u])
+    normals = (points - centre) / radius_m
+    towards_camera = -points / np.linalg.norm(points, axis=1, keepdims=True)
+    lambert = np.clip(np.sum(normals * towards_camera, axis=1), 0.0, 1.0)
+    shade = OCCLUDER_AMBIENT + (1 - OCCLUDER_AMBIENT) * lambert
+    color = np.zeros((camera.height, camera.width, 3), np.uint8)
+    color[v, u] = np.rint(np.array(OCCLUDER_RGB) * shade[:, None]).astype(np.uint8)
+    return color, depth
+
+
+def shift_image(image: ArrayLike, shift_px: ArrayLike) -> NDArray[np.uint8]:
+    """An image's content moved by ``(du, dv)`` pixels: a color camera misregistered.
+
+    ``out[v, u] = image[v - dv, u - du]``, bilinear between pixels for a sub-pixel
+    shift (whole-pixel shifts copy pixels exactly); the edge pixels are repeated where
+    the shifted image has no content.
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8
+    shift_px : (2,) float
+        ``(du, dv)``, pixels, right and down.
+
+    Returns
+    -------
+    (H, W, 3) uint8
+    """
+    picture = as_array("image", image, (None, None, 3), np.uint8, kind="u")
+    du, dv = as_array("shift_px", shift_px, (2,), np.float64, finite=True)
+    height, width = picture.shape[:2]
+    matrix = np.array([[1.0, 0.0, du], [0.0, 1.0, dv]])
+    shifted = cv2.warpAffine(
+        picture, matrix, (width, height), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+    )
+    return shifted.astype(np.uint8, copy=False)
+
+
 def render_frames(
     trajectory: Trajectory, settings: SequenceSettings, renderer: GloveRenderer
 ) -> Iterator[SyntheticFrame]:
@@ -539,15 +783,17 @@ def render_frames(
     ----------
     trajectory : Trajectory
     settings : SequenceSettings
-        ``frames``, ``seed``, ``background``, ``noise`` and ``min_visible_pixels`` are
-        used here; the camera is the renderer's.
+        Everything but ``trajectory``, ``camera`` and ``depth_scale`` is used here; the
+        camera is the renderer's.
     renderer : GloveRenderer
-        Its mesh's skeleton gives the keypoints.
+        Its mesh's skeleton gives the keypoints; it must be the settings' hand
+        (:func:`check_renderer_hand`).
 
     Yields
     ------
     SyntheticFrame
     """
+    check_renderer_hand(renderer, settings.proportions)
     camera = renderer.camera
     postures, rotations, translations = trajectory.sample(
         sequence_times(trajectory, settings.frames)
@@ -560,6 +806,15 @@ def render_frames(
             f"frame {frame}: the hand comes to z = {nearest[frame]:.3f} m; a trajectory must "
             f"keep it at least {MIN_HAND_DEPTH_M} m in front of the camera"
         )
+    radius = settings.occluder_radius_m
+    balls = occluder_centres(keypoints, settings.occluder_from_m, settings.occluder_to_m)
+    if radius > 0 and np.any(balls[:, 2] - radius < MIN_HAND_DEPTH_M):
+        frame = int(np.argmax(balls[:, 2] - radius < MIN_HAND_DEPTH_M))
+        raise ValueError(
+            f"frame {frame}: the occluder comes to z = {balls[frame, 2] - radius:.3f} m; "
+            f"occluder_from_m and occluder_to_m must keep it at least {MIN_HAND_DEPTH_M} m "
+            "in front of the camera"
+        )
     scene_rng = np.random.default_rng([settings.seed, 0])
     background = make_background(
         settings.background, camera, keypoints, renderer.pattern, rng=scene_rng
@@ -571,6 +826,12 @@ def render_frames(
     for frame in range(len(postures)):
         rendering = renderer.render(postures[frame], rotations[frame], translations[frame])
         color, depth, mask = composite(rendering.color, rendering.depth_m, background)
+        occluded_fraction = None
+        if radius > 0:
+            ball_color, ball_depth = sphere_image(camera, balls[frame], radius)
+            color, depth, ball = composite(ball_color, ball_depth, Background(color, depth))
+            occluded_fraction = float((mask & ball).sum() / max(int(mask.sum()), 1))
+            mask = mask & ~ball
         keypoints_2d = camera.project(keypoints[frame])
         truth = FrameTruth(
             frame=frame,
@@ -582,7 +843,10 @@ def render_frames(
             translation_m=translations[frame],
             keypoints_3d_m=keypoints[frame],
             keypoints_2d_px=keypoints_2d,
+            occluded_fraction=occluded_fraction,
         )
+        if any(settings.misregistration_px):
+            color = shift_image(color, settings.misregistration_px)
         rng = np.random.default_rng([settings.seed, 1, frame])
         noisy_depth = apply_depth_noise(depth, intrinsics, depth_noise, rng=rng)
         noisy_color = apply_color_noise(color, color_noise, gains=gains, rng=rng)
@@ -676,8 +940,9 @@ def render_sequence(
         Created; must not hold files yet. Written under a temporary name and renamed
         when complete (:func:`staged_folder`): a failed run leaves nothing behind.
     renderer : GloveRenderer, optional
-        For the settings' camera; one with the default mesh is made (and closed) if
-        not given.
+        For the settings' camera and hand; one with the settings' hand
+        (``proportioned_mesh(make_hand_mesh(), settings.proportions)``) is made (and
+        closed) if not given.
     progress : callable, optional
         Wraps the frame iterator, given the number of frames (e.g. a progress bar).
 
@@ -689,8 +954,10 @@ def render_sequence(
     trajectory_path = resolve_trajectory(settings.trajectory)
     trajectory = load_trajectory(trajectory_path)
     camera = load_camera(settings.camera)
-    if renderer is not None and renderer.camera != camera:
-        raise ValueError(f"renderer: expected camera {camera}, got {renderer.camera}")
+    if renderer is not None:
+        if renderer.camera != camera:
+            raise ValueError(f"renderer: expected camera {camera}, got {renderer.camera}")
+        check_renderer_hand(renderer, settings.proportions)
     count = len(sequence_times(trajectory, settings.frames))
     if count > MAX_SEQUENCE_FRAMES:
         raise ValueError(
@@ -701,7 +968,13 @@ def render_sequence(
         (root / "color").mkdir()
         (root / "depth").mkdir()
         own = renderer is None
-        active = renderer if renderer is not None else GloveRenderer(camera)
+        active = (
+            renderer
+            if renderer is not None
+            else GloveRenderer(
+                camera, mesh=proportioned_mesh(make_hand_mesh(), settings.proportions)
+            )
+        )
         try:
             frames: Iterable[SyntheticFrame] = render_frames(trajectory, settings, active)
             if progress is not None:
@@ -723,6 +996,7 @@ def render_sequence(
             "trajectory_file": str(trajectory_path),
             "camera_intrinsics": asdict(camera),
             "hand_length_m": hand_length,
+            "hand_proportions": settings.proportions.as_dict(),
         }
         (root / "meta.json").write_text(json.dumps(meta, indent=1))
     return SequenceReport(str(Path(folder)), written, visible, time.perf_counter() - start)

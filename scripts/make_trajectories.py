@@ -1,4 +1,5 @@
-"""Write the named trajectories Tr1-Tr5 (thesis ch. 4.3) to configs/trajectories/.
+"""Write the named trajectories Tr1-Tr5 (thesis ch. 4.3) and free_fingers to
+configs/trajectories/.
 
 The thesis recorded five movements with its tracker and replayed them as synthetic
 Kinect data: Tr1 and Tr2 a pinch grasp, an open hand and some movements; Tr3, Tr4 and
@@ -7,6 +8,12 @@ available, so these are hand-made stand-ins with the same content: realistic wri
 motion (forearm rotation, wrist flexion, the arm swinging in the image and toward the
 camera), the hand 0.4-1.0 m from the camera and mostly in view. Tr4 holds the quick
 open-close changes that make the posture error peak in the thesis' Figure 4.7.
+
+``free_fingers`` tests the tracker on postures far from every grasp database: a fist
+opens into pointing and a peace sign, the hand turns from its back to its palm, the
+fingers curl one after another and the thumb crosses the palm. Postures that
+configs/hand/postures.toml does not name are written out in :data:`FREE_POSTURES`,
+in degrees by joint, and go into the file as 20 angles in radians.
 
 Every keyframe is written out below in words a person can check: the posture name,
 four angles in degrees and where the middle of the hand is (camera frame, metres):
@@ -33,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +48,7 @@ from numpy.typing import NDArray
 
 from glovedb import __version__
 from glovedb.camera import KINECT_V1
-from glovedb.hand_model import DEFAULT_HAND_LENGTH_M, forward_kinematics
+from glovedb.hand_model import DEFAULT_HAND_LENGTH_M, JOINT_NAMES, forward_kinematics
 from glovedb.rotations import (
     geodesic_angle,
     matrix_to_quaternion,
@@ -57,6 +65,24 @@ BACK_TO_CAMERA = np.diag([1.0, -1.0, -1.0])
 
 # time_s, posture, forearm, flex, roll, lean (degrees), centre of the hand (m)
 Keyframe = tuple[float, str, float, float, float, float, tuple[float, float, float]]
+
+# Postures no grasp database holds and configs/hand/postures.toml does not name, in
+# degrees by joint (CONVENTIONS.md names, within the joint limits; joints not listed
+# are 0, the straight open hand).
+FREE_POSTURES: dict[str, dict[str, float]] = {
+    # One finger curled into the palm, the other four and the thumb straight.
+    "index_curled": {"index_mcp_flex": 80, "index_pip_flex": 95, "index_dip_flex": 50},
+    "middle_curled": {"middle_mcp_flex": 80, "middle_pip_flex": 95, "middle_dip_flex": 50},
+    "ring_curled": {"ring_mcp_flex": 65, "ring_pip_flex": 85, "ring_dip_flex": 45},
+    "little_curled": {"little_mcp_flex": 80, "little_pip_flex": 95, "little_dip_flex": 50},
+    # The thumb laid across the palm toward the little finger's base, fingers straight.
+    "thumb_across": {
+        "thumb_cmc_abd": 10,
+        "thumb_cmc_flex": 50,
+        "thumb_mcp_flex": 45,
+        "thumb_ip_flex": 30,
+    },
+}
 
 TRAJECTORIES: dict[str, tuple[str, list[Keyframe]]] = {
     "tr1_pinch": (
@@ -127,6 +153,24 @@ TRAJECTORIES: dict[str, tuple[str, list[Keyframe]]] = {
             (9.0, "open", -10, 0, 0, 0, (-0.10, 0.00, 0.70)),
         ],
     ),
+    "free_fingers": (
+        "Free fingers: a fist opens into pointing and a peace sign, the hand turns to its "
+        "palm, the fingers curl one after another, the thumb crosses the palm.",
+        [
+            (0.0, "fist", 0, 0, 0, 0, (0.00, 0.02, 0.62)),
+            (0.8, "fist", 15, 5, -5, 5, (-0.02, 0.02, 0.61)),
+            (1.8, "point", 25, 10, -10, 5, (-0.04, 0.01, 0.60)),
+            (2.6, "point", 20, 5, -15, 0, (-0.04, 0.00, 0.60)),
+            (3.4, "peace", 10, 0, -5, 0, (-0.02, 0.00, 0.60)),
+            (4.4, "open", 160, -5, 5, 5, (0.00, 0.00, 0.58)),
+            (4.9, "index_curled", 170, -5, 5, 5, (0.01, 0.00, 0.58)),
+            (5.4, "middle_curled", 175, 0, 5, 0, (0.02, 0.00, 0.58)),
+            (5.9, "ring_curled", 180, 0, 8, 0, (0.02, -0.01, 0.59)),
+            (6.4, "little_curled", 185, 5, 10, 0, (0.03, -0.01, 0.60)),
+            (7.0, "thumb_across", 190, 5, 10, -5, (0.03, -0.01, 0.60)),
+            (7.5, "open", 180, 0, 5, 0, (0.02, 0.00, 0.62)),
+        ],
+    ),
 }
 
 
@@ -134,6 +178,18 @@ def hand_rotation(forearm: float, flex: float, roll: float, lean: float) -> NDAr
     """``cam_R_hand`` from the four angles of the module docstring, in degrees."""
     arm = rotation_z(np.radians(roll)) @ rotation_x(np.radians(lean)) @ BACK_TO_CAMERA
     return arm @ rotation_y(np.radians(forearm)) @ rotation_x(np.radians(flex))
+
+
+def posture_json(name: str) -> str | list[float]:
+    """A posture as the trajectory file holds it: a name of configs/hand/postures.toml
+    as it is, a :data:`FREE_POSTURES` name as its 20 angles in radians."""
+    if name not in FREE_POSTURES:
+        return name
+    angles = FREE_POSTURES[name]
+    unknown = sorted(set(angles) - set(JOINT_NAMES))
+    if unknown:
+        raise ValueError(f"FREE_POSTURES[{name!r}]: unknown joint {unknown[0]!r}")
+    return [round(math.radians(angles.get(joint, 0.0)), 6) for joint in JOINT_NAMES]
 
 
 def keyframe_json(keyframe: Keyframe) -> dict:
@@ -145,7 +201,7 @@ def keyframe_json(keyframe: Keyframe) -> dict:
     quaternion = matrix_to_quaternion(rotation)
     return {
         "time_s": time_s,
-        "posture": posture,
+        "posture": posture_json(posture),
         "rotation_quat_wxyz": np.round(quaternion, 6).tolist(),
         "translation_m": np.round(wrist, 5).tolist(),
     }

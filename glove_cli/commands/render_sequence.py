@@ -5,7 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Iterable, Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from builder.sequence import SequenceSettings
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -21,7 +24,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--trajectory",
         required=True,
-        help="named trajectory (tr1 ... tr5, or a file stem in configs/trajectories/) "
+        help="named trajectory (tr1 ... tr5, free, or a file stem in configs/trajectories/) "
         "or a trajectory JSON file",
     )
     parser.add_argument("--out", required=True, help="output folder (new or empty)")
@@ -46,22 +49,124 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         choices=NOISE_PRESETS,
         help="depth and color noise of a camera (default: %(default)s)",
     )
+    hand = parser.add_argument_group("the hand's shape (default: the model hand)")
+    hand.add_argument(
+        "--hand-length",
+        type=float,
+        metavar="M",
+        help="wrist crease to the middle fingertip, metres, 0.095-0.38 (default: 0.19); "
+        "the whole hand scales about the wrist",
+    )
+    hand.add_argument(
+        "--finger-length",
+        metavar="F[,F,F,F,F]",
+        help="finger length factors, 0.5-2: one for all five fingers or five, thumb "
+        "first (default: 1)",
+    )
+    hand.add_argument(
+        "--palm-width", type=float, metavar="F", help="palm width factor, 0.5-2 (default: 1)"
+    )
+    occluder = parser.add_argument_group(
+        "an occluder: a ball passing in front of the hand",
+        "Write a leading minus with '=': --occluder-from=-0.1,0,-0.05.",
+    )
+    occluder.add_argument(
+        "--occluder-radius",
+        type=float,
+        metavar="M",
+        help="the ball's radius, metres (default: 0, no ball)",
+    )
+    occluder.add_argument(
+        "--occluder-from",
+        metavar="X,Y,Z",
+        help="the ball's centre relative to the hand's centre at the first frame, camera "
+        "frame (x right, y down, z away), metres (default: -0.12,0,-0.04)",
+    )
+    occluder.add_argument(
+        "--occluder-to",
+        metavar="X,Y,Z",
+        help="the same at the last frame; the ball moves linearly in between "
+        "(default: 0.12,0,-0.04)",
+    )
+    parser.add_argument(
+        "--misregistration",
+        metavar="DU[,DV]",
+        help="shift of the color image against depth, pixels right and down (sub-pixel "
+        "allowed); one number shifts horizontally (default: 0,0)",
+    )
     parser.set_defaults(run=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
+def numbers(option: str, text: str, counts: tuple[int, ...]) -> tuple[float, ...]:
+    """The comma-separated numbers of an option's value.
 
-    from builder.sequence import SequenceSettings, render_sequence
+    Parameters
+    ----------
+    option : str
+        The option's name, for the error message.
+    text : str
+        E.g. ``"-0.12,0,-0.04"``.
+    counts : tuple of int
+        How many numbers are allowed.
 
-    settings = SequenceSettings(
+    Returns
+    -------
+    tuple of float
+
+    Raises
+    ------
+    ValueError
+        Naming the option, when a part is not a number or the count is not allowed.
+    """
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) not in counts:
+        allowed = " or ".join(map(str, counts))
+        raise ValueError(f"{option}: expected {allowed} comma-separated numbers, got {text!r}")
+    return values
+
+
+def settings_from_args(args: argparse.Namespace) -> SequenceSettings:
+    """The :class:`~builder.sequence.SequenceSettings` of parsed arguments; options not
+    given keep the settings' defaults."""
+    from builder.sequence import SequenceSettings
+
+    options: dict[str, Any] = {}
+    if args.hand_length is not None:
+        options["hand_length_m"] = args.hand_length
+    if args.finger_length is not None:
+        factors = numbers("--finger-length", args.finger_length, (1, 5))
+        options["finger_length"] = factors * 5 if len(factors) == 1 else factors
+    if args.palm_width is not None:
+        options["palm_width"] = args.palm_width
+    if args.occluder_radius is not None:
+        options["occluder_radius_m"] = args.occluder_radius
+    if args.occluder_from is not None:
+        options["occluder_from_m"] = numbers("--occluder-from", args.occluder_from, (3,))
+    if args.occluder_to is not None:
+        options["occluder_to_m"] = numbers("--occluder-to", args.occluder_to, (3,))
+    if args.misregistration is not None:
+        shift = numbers("--misregistration", args.misregistration, (1, 2))
+        options["misregistration_px"] = shift if len(shift) == 2 else (shift[0], 0.0)
+    return SequenceSettings(
         trajectory=args.trajectory,
         camera=args.camera,
         frames=args.frames,
         seed=args.seed,
         background=args.background,
         noise=args.noise,
+        **options,
     )
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from builder.sequence import render_sequence
+
+    settings = settings_from_args(args)
 
     def bar(frames: Iterator[Any], total: int) -> Iterable[Any]:
         return tqdm(frames, total=total, desc="rendering", unit="frame", disable=None,

@@ -16,7 +16,7 @@ from tracker.evaluation import read_groundtruth
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--trajectory", "tr9"], "unknown trajectory 'tr9'; known: tr1_pinch"),
+        (["--trajectory", "tr9"], "unknown trajectory 'tr9'; known: free_fingers, tr1_pinch"),
         (["--trajectory", "no/such/file.json"], "cannot read the trajectory"),
         (["--trajectory", "tr1", "--camera", "kinect2"], "unknown camera 'kinect2'"),
         (["--trajectory", "tr1", "--background", "forest"], "background: expected one of"),
