@@ -108,8 +108,8 @@ def observe(
         labels=cloud.labels[::step],
         intrinsics=intrinsics,
         origin_uv=low.astype(np.int64),
-        outside_px=outside,
-        gradient=gradient,
+        outside_px=np.asarray(outside, dtype=np.float32),
+        gradient=np.asarray(gradient, dtype=np.float32),
         depth_m=np.ascontiguousarray(depth_m[low[1] : high[1], low[0] : high[0]]),
         hand_pixels=len(region),
     )

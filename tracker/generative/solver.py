@@ -94,7 +94,7 @@ def levenberg_marquardt(
         gradient = jacobian.T @ residual
         damped = normal + damping * (np.diag(np.diag(normal)) + _EPS * np.eye(len(normal)))
         try:
-            delta = -np.linalg.solve(damped, gradient)
+            delta = np.asarray(-np.linalg.solve(damped, gradient), dtype=np.float64)
         except np.linalg.LinAlgError:
             damping *= _GROW
             continue

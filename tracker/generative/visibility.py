@@ -15,7 +15,7 @@ into a coarse depth buffer (cells of ``cell_px`` pixels, the nearest sample wins
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from tracker.generative.model import PosedHand
 
@@ -25,7 +25,7 @@ VISIBILITY: tuple[str, ...] = ("seen", "self_occluded", "occluded", "out_of_view
 def keypoint_visibility(
     hand: PosedHand,
     depth_m: NDArray[np.float32],
-    pinhole: tuple[float, float, float, float],
+    pinhole: ArrayLike,
     *,
     radius_m: float = 0.012,
     margin_m: float = 0.012,
@@ -39,7 +39,8 @@ def keypoint_visibility(
         The fitted model.
     depth_m : (H, W) float32
         The frame's observed depth (0: none).
-    pinhole : (fx, fy, cx, cy)
+    pinhole : (4,) float
+        fx, fy, cx, cy.
     radius_m, margin_m : float
         How far behind the model's front surface a keypoint lies, and the tolerance.
     cell_px : int
@@ -50,7 +51,7 @@ def keypoint_visibility(
     tuple of str
         21 entries of :data:`VISIBILITY`.
     """
-    fx, fy, cx, cy = pinhole
+    fx, fy, cx, cy = (float(value) for value in np.asarray(pinhole).reshape(4))
     height, width = depth_m.shape
     facing = np.einsum("ij,ij->i", hand.normals, hand.points_m) < 0
     points = hand.points_m[facing & (hand.points_m[:, 2] > 1e-3)]
