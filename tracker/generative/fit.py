@@ -23,6 +23,8 @@ from tracker.generative.energy.data import data_residuals
 from tracker.generative.energy.fingertips import fingertip_residuals
 from tracker.generative.energy.limits import limit_residuals
 from tracker.generative.energy.prior import prior_residuals
+from tracker.generative.energy.reference import NAME as REFERENCE
+from tracker.generative.energy.reference import reference_residuals
 from tracker.generative.energy.residuals import Residuals
 from tracker.generative.energy.silhouette import silhouette_residuals
 from tracker.generative.energy.temporal import temporal_residuals
@@ -70,6 +72,10 @@ class FitSettings:
         Per metre of overlap of two fingers.
     temporal_weight : float
         Per metre of RMS keypoint motion from the previous frame.
+    reference_weight : float
+        Per radian of a joint angle's departure from the start's posture.
+    reference_scale_deg : float
+        Departures beyond this cost less and less (Cauchy loss), degrees.
     fingertip_weight : float
         Per metre of a named fingertip detection beyond its dead band.
     fingertip_deadband_m : float
@@ -91,6 +97,8 @@ class FitSettings:
     limit_weight: float = 30.0
     collision_weight: float = 300.0
     temporal_weight: float = 15.0
+    reference_weight: float = 2.0
+    reference_scale_deg: float = 10.0
     fingertip_weight: float = 300.0
     fingertip_deadband_m: float = 0.015
     proportion_weight: float = 10.0
@@ -115,7 +123,8 @@ class FrameFit:
     proportions : HandProportions
         Those the fit ended with (the start's unless they were estimated).
     energy : float
-        Total energy at ``pose``.
+        Energy at ``pose`` without the reference term (which differs between starts):
+        what starts are compared by.
     start_energy : float
     terms : dict of str to float
         Energy of every term at ``pose``.
@@ -156,6 +165,7 @@ def frame_energy(
     prior: PosturePrior,
     previous_keypoints_m: NDArray[np.float64] | None = None,
     tip_targets_m: NDArray[np.float64] | None = None,
+    reference_rad: NDArray[np.float64] | None = None,
     proportions: bool = False,
 ) -> tuple[list[Residuals], dict[str, float]]:
     """Every term's residuals at one pose, and the fit's quality measures.
@@ -186,6 +196,13 @@ def frame_energy(
     ]
     if previous_keypoints_m is not None and s.temporal_weight > 0:
         terms.append(temporal_residuals(hand, previous_keypoints_m, weight=s.temporal_weight))
+    if reference_rad is not None and s.reference_weight > 0:
+        terms.append(
+            reference_residuals(
+                hand, reference_rad, weight=s.reference_weight,
+                scale_rad=np.radians(s.reference_scale_deg),
+            )
+        )  # fmt: skip
     if tip_targets_m is not None and s.fingertip_weight > 0:
         terms.append(
             fingertip_residuals(
@@ -235,6 +252,7 @@ def fit_frame(
         "prior": prior,
         "previous_keypoints_m": previous_keypoints_m,
         "tip_targets_m": tip_targets_m,
+        "reference_rad": start.posture_rad,
         "proportions": estimate_proportions,
     }
 
@@ -284,7 +302,7 @@ def fit_frame(
     return FrameFit(
         pose=result.state.pose,
         proportions=result.state.samples.proportions,
-        energy=sum(t.energy for t in terms),
+        energy=sum(t.energy for t in terms if t.name != REFERENCE),
         start_energy=result.start_energy,
         terms={t.name: t.energy for t in terms},
         matched=quality["matched"],

@@ -2,10 +2,16 @@
 
 The fingers' volumes are the round cones of :mod:`glovedb.capsules`. For every pair
 of cones on two different fingers, the closest points of their axes are found; where
-the cones overlap (the sum of their radii there exceeds the distance), the overlap
-times ``weight`` is a residual that pushes the two axis points apart. Pairs that
-already overlap in the open flat hand (cones at the fingers' bases, which the palm
-joins) are left out.
+the cones overlap by more than ``tolerance_m`` (the sum of their radii there exceeds
+the distance), the excess times ``weight`` is a residual that pushes the two axis
+points apart. Left out:
+
+- pairs that already overlap in the open flat hand (cones at the fingers' bases,
+  which the palm joins);
+- the thumb: its cones are fat at the base, where they stand for the thenar
+  eminence, and the named postures the databases are built from (``fist``, ``point``)
+  lay the thumb 1-2 cm into the curled fingers' cones. Those postures are the truth of
+  the synthetic sequences, so a thumb collision would push the fit away from it.
 """
 
 from __future__ import annotations
@@ -60,7 +66,7 @@ def _pairs(skeleton: Skeleton) -> NDArray[np.int64]:
     capsules = finger_capsules(skeleton)
     finger = (capsules.bone - 1) // 3
     first, second = np.triu_indices(len(capsules), k=1)
-    keep = finger[first] != finger[second]
+    keep = (finger[first] != finger[second]) & (finger[first] > 0) & (finger[second] > 0)
     first, second = first[keep], second[keep]
     rest = forward_kinematics(np.zeros(N_JOINTS), skeleton).bone_transforms[0]
     overlap = _overlaps(capsules, rest, first, second)[0]
@@ -84,8 +90,9 @@ def _overlaps(
     return ra + rb - np.linalg.norm(pa - pb, axis=1), pa, pb
 
 
-def collision_residuals(hand: PosedHand, *, weight: float) -> Residuals:
-    """Residuals ``weight * overlap`` (per metre) of overlapping cones of two fingers."""
+def collision_residuals(hand: PosedHand, *, weight: float, tolerance_m: float = 0.002) -> Residuals:
+    """Residuals ``weight * (overlap - tolerance_m)`` (per metre) of cones of two
+    fingers that overlap by more than ``tolerance_m``."""
     skeleton = hand.samples.skeleton
     pairs = _pairs(skeleton)
     capsules = finger_capsules(skeleton)
@@ -94,7 +101,7 @@ def collision_residuals(hand: PosedHand, *, weight: float) -> Residuals:
     camera_T_bone[:, :3, :3] = R @ camera_T_bone[:, :3, :3]
     camera_T_bone[:, :3, 3] = camera_T_bone[:, :3, 3] @ R.T + t
     overlap, pa, pb = _overlaps(capsules, camera_T_bone, pairs[:, 0], pairs[:, 1])
-    hit = np.flatnonzero(overlap > 0)
+    hit = np.flatnonzero(overlap > tolerance_m)
     if len(hit) == 0:
         return Residuals.empty(NAME)
     first, second = pairs[hit, 0], pairs[hit, 1]
@@ -103,4 +110,4 @@ def collision_residuals(hand: PosedHand, *, weight: float) -> Residuals:
     ja = hand.bone_point_jacobian(pa[hit], capsules.bone[first])
     jb = hand.bone_point_jacobian(pb[hit], capsules.bone[second])
     jacobian = -weight * np.einsum("pi,pik->pk", away, ja - jb)
-    return Residuals(NAME, weight * overlap[hit], jacobian)
+    return Residuals(NAME, weight * (overlap[hit] - tolerance_m), jacobian)
