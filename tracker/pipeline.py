@@ -321,8 +321,11 @@ class Tracker(Closing):
         )
         self.split = split_by_label(self.model_mesh, pattern)
         self.prior = load_posture_prior()
-        self._model_samples = hand_samples(self.model_mesh, self.split)
+        self._model_samples = hand_samples(
+            self.model_mesh, self.split, spacing=self.settings.fit.sample_spacing
+        )
         self._set_proportions(self.settings.hand_proportions or HandProportions())
+        self._proportion_information: NDArray[np.float64] | None = None
         self._calibrated = (
             0 if self.settings.hand_proportions is None else self.settings.calibration_frames
         )
@@ -421,8 +424,9 @@ class Tracker(Closing):
         if not trusted:
             return self._not_found(frame, timing, started)
         best = min(trusted, key=lambda fit: fit.energy)
-        if self.calibrating:
+        if self.calibrating and best.proportion_information is not None:
             self._set_proportions(best.proportions)
+            self._proportion_information = best.proportion_information
             self._calibrated += 1
         hand = PosedHand(self.samples, best.pose)
         self._previous = hand
@@ -464,6 +468,7 @@ class Tracker(Closing):
             self.samples, observation, start, settings=self.settings.fit, prior=self.prior,
             previous_keypoints_m=previous, tip_targets_m=tip_targets,
             estimate_proportions=self.calibrating,
+            proportion_information=self._proportion_information,
         )  # fmt: skip
 
     def _lookup_start(

@@ -253,13 +253,18 @@ def test_proportions_are_recovered_from_frames_of_a_larger_hand(samples):
     person = samples.with_proportions(truth)
     estimate = samples
     prior = load_posture_prior()
-    settings = FitSettings(iterations=8, temporal_weight=0.0)
+    settings = FitSettings(iterations=8, temporal_weight=0.0, tolerance=1e-6)
     poses = [_pose(name, angle=a) for name in ("open", "pinch", "open") for a in (0.2, 0.6, -0.4)]
+    information = None
     for pose in poses:
         fit = fit_frame(
             estimate, _observation(person, pose), pose, settings=settings, prior=prior,
-            estimate_proportions=True,
+            estimate_proportions=True, proportion_information=information,
         )  # fmt: skip
+        assert fit.proportion_information is not None
+        if information is not None:  # information only adds up
+            assert np.all(np.linalg.eigvalsh(fit.proportion_information - information) > -1e-6)
+        information = fit.proportion_information
         estimate = estimate.with_proportions(fit.proportions)
     found = estimate.proportions.as_vector()
     assert abs(found[0] - 1.1) < 0.03

@@ -4,9 +4,19 @@
 E_fingertips`` (one module each in :mod:`tracker.generative.energy`), minimised over
 the 26 unknowns of :mod:`tracker.generative.model` by
 :func:`tracker.generative.solver.levenberg_marquardt`; while a user's hand
-proportions are being estimated, over the 7 proportions as well, with a pull toward
-the current estimate (``proportion_weight``) that keeps one frame from moving them
-far.
+proportions are being estimated, over the 7 proportions as well.
+
+The proportions are estimated over many frames by accumulating information, as a
+recursive least-squares (Kalman) filter would: each frame's fit pulls them toward the
+estimate so far with the residual ``L^T (p - p_est)``, where ``L L^T`` is the
+information gathered from the earlier frames (starting at ``proportion_weight**2``
+per factor); after the fit, the frame's information is the Schur complement of the
+fit's normal matrix onto the proportions (the pose unknowns eliminated), which
+includes the pull, so it adds up frame after frame. Directions the frames do not
+observe keep little information and stay near the start. A finger's length is
+estimated only in frames where that finger is extended (flexion of its three joints
+adding up to less than ``extended_finger_deg`` at the start): a curled finger's
+length and its flexion explain the same points, and fitting both drifts the length.
 """
 
 from __future__ import annotations
@@ -32,6 +42,10 @@ from tracker.generative.model import N_PARAMS, HandPose, HandSamples, PosedHand
 from tracker.generative.observation import Observation
 from tracker.generative.solver import levenberg_marquardt
 
+FLEXION_JOINTS = np.array([1, 2, 3] + [4 * f + k for f in range(1, 5) for k in (1, 2, 3)])
+"""The three flexion angles of each finger, thumb first (the thumb's CMC flexion moves
+it across the palm, its MCP and IP curl it)."""
+
 
 @dataclass(frozen=True)
 class FitSettings:
@@ -46,8 +60,13 @@ class FitSettings:
     ----------
     iterations : int
         Levenberg-Marquardt solves per hypothesis.
+    tolerance : float
+        A kept step that lowers the energy by less than this share ends the solve.
     max_points : int
         Observed glove points used by the data term.
+    sample_spacing : int
+        The model surface is every n-th vertex of the glove mesh, split by color
+        (:func:`tracker.generative.model.hand_samples`).
     data_weight : float
         Per metre of RMS point-to-plane distance (the residuals are divided by the
         square root of the number of points).
@@ -80,12 +99,20 @@ class FitSettings:
         Per metre of a named fingertip detection beyond its dead band.
     fingertip_deadband_m : float
     proportion_weight : float
-        While estimating proportions: per unit of factor change from the current
-        estimate in one frame.
+        While estimating proportions: the information about the length scale and the
+        palm width before the first frame, per unit of factor change (module
+        docstring).
+    finger_length_weight : float
+        The same for each finger's length factor.
+    extended_finger_deg : float
+        A finger counts as extended, and its length is estimated, when the flexion
+        of its three joints adds up to less than this, degrees.
     """
 
     iterations: int = 6
+    tolerance: float = 1e-3
     max_points: int = 500
+    sample_spacing: int = 2
     data_weight: float = 1000.0
     data_huber_m: float = 0.006
     data_gate_m: float = 0.03
@@ -101,16 +128,20 @@ class FitSettings:
     reference_scale_deg: float = 10.0
     fingertip_weight: float = 300.0
     fingertip_deadband_m: float = 0.015
-    proportion_weight: float = 10.0
+    proportion_weight: float = 3.0
+    finger_length_weight: float = 6.0
+    extended_finger_deg: float = 60.0
 
     def __post_init__(self) -> None:
         for name, value in self.__dict__.items():
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"FitSettings.{name}: expected a number >= 0, got {value}")
-        if self.iterations < 1 or self.max_points < 30 or self.silhouette_samples < 1:
+        if min(self.iterations, self.sample_spacing, self.silhouette_samples) < 1:
             raise ValueError(
-                "FitSettings: iterations >= 1, max_points >= 30 and silhouette_samples >= 1"
+                "FitSettings: iterations, sample_spacing and silhouette_samples must be >= 1"
             )
+        if self.max_points < 30:
+            raise ValueError(f"FitSettings.max_points: expected >= 30, got {self.max_points}")
 
 
 @dataclass(frozen=True)
@@ -137,6 +168,9 @@ class FrameFit:
     rms_m : float
         RMS point-to-plane distance of the paired points (before the Huber loss).
     iterations : int
+    proportion_information : (7, 7) float64 or None
+        When the proportions were estimated: the information about them after this
+        frame (module docstring), to give to the next frame's fit.
     """
 
     pose: HandPose
@@ -148,6 +182,7 @@ class FrameFit:
     outside: float = 1.0
     rms_m: float = np.inf
     iterations: int = 0
+    proportion_information: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)
@@ -214,6 +249,15 @@ def frame_energy(
     return terms, {"matched": matched, "outside": outside, "rms_m": rms}
 
 
+def initial_proportion_weights(settings: FitSettings) -> NDArray[np.float64]:
+    """``(7,)`` square roots of the information about each proportion before the first
+    frame (``proportion_weight`` for the scale and the palm, ``finger_length_weight``
+    for the fingers)."""
+    weights = np.full(N_PROPORTIONS, settings.finger_length_weight)
+    weights[[0, -1]] = settings.proportion_weight
+    return weights
+
+
 def fit_frame(
     samples: HandSamples,
     observation: Observation,
@@ -224,6 +268,7 @@ def fit_frame(
     previous_keypoints_m: NDArray[np.float64] | None = None,
     tip_targets_m: NDArray[np.float64] | None = None,
     estimate_proportions: bool = False,
+    proportion_information: NDArray[np.float64] | None = None,
 ) -> FrameFit:
     """Fit the hand to one frame from a start pose (module docstring).
 
@@ -241,12 +286,23 @@ def fit_frame(
         Named fingertip detections, NaN rows for none (fingertip term).
     estimate_proportions : bool
         Also fit the hand proportions.
+    proportion_information : (7, 7) float, optional
+        The information about them from earlier frames (``FrameFit.
+        proportion_information``); ``proportion_weight**2 * I`` if not given.
 
     Returns
     -------
     FrameFit
     """
     anchor = samples.proportions.as_vector()
+    information = (
+        np.diag(initial_proportion_weights(settings) ** 2)
+        if proportion_information is None
+        else np.asarray(proportion_information, dtype=np.float64)
+    )
+    pull_rows = np.linalg.cholesky(information).T
+    flexion = np.degrees(start.posture_rad[FLEXION_JOINTS].reshape(5, 3).sum(axis=1))
+    extended = (flexion < settings.extended_finger_deg).astype(np.float64)
     kwargs = {
         "settings": settings,
         "prior": prior,
@@ -256,8 +312,12 @@ def fit_frame(
         "proportions": estimate_proportions,
     }
 
+    last: list[tuple[_State, list[Residuals], dict[str, float]]] = []
+    last_jacobian: list[NDArray[np.float64]] = []
+
     def evaluate(state: _State) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        terms, _ = frame_energy(state.samples, state.pose, observation, **kwargs)  # type: ignore[arg-type]
+        terms, quality = frame_energy(state.samples, state.pose, observation, **kwargs)  # type: ignore[arg-type]
+        last[:] = [(state, terms, quality)]
         residual = np.concatenate([t.values for t in terms])
         jacobian = np.concatenate([t.jacobian for t in terms])
         if not estimate_proportions:
@@ -270,17 +330,13 @@ def fit_frame(
                 for t in terms
             ]
         )
-        pull = settings.proportion_weight * (state.samples.proportions.as_vector() - anchor)
+        by_proportions[:, 1:6] *= extended
+        pull = pull_rows @ (state.samples.proportions.as_vector() - anchor)
         residual = np.concatenate([residual, pull])
         jacobian = np.block(
-            [
-                [jacobian, by_proportions],
-                [
-                    np.zeros((N_PROPORTIONS, N_PARAMS)),
-                    settings.proportion_weight * np.eye(N_PROPORTIONS),
-                ],
-            ]
+            [[jacobian, by_proportions], [np.zeros((N_PROPORTIONS, N_PARAMS)), pull_rows]]
         )
+        last_jacobian[:] = [jacobian]
         return residual, jacobian
 
     def advance(state: _State, delta: NDArray[np.float64]) -> _State:
@@ -291,14 +347,21 @@ def fit_frame(
         return _State(pose, state.samples.with_proportions(HandProportions.from_vector(factors)))
 
     result = levenberg_marquardt(
-        evaluate, advance, _State(start, samples), iterations=settings.iterations
-    )
-    terms, quality = frame_energy(
-        result.state.samples,
-        result.state.pose,
-        observation,
-        **{**kwargs, "proportions": False},  # type: ignore[arg-type]
-    )
+        evaluate, advance, _State(start, samples), iterations=settings.iterations,
+        tolerance=settings.tolerance,
+    )  # fmt: skip
+    if last[0][0] is not result.state:  # it was evaluated before a refused step
+        evaluate(result.state)
+    _, terms, quality = last[0]
+    information_after = None
+    if estimate_proportions:
+        normal = last_jacobian[0].T @ last_jacobian[0]
+        pose_block = normal[:N_PARAMS, :N_PARAMS] + 1e-9 * np.eye(N_PARAMS)
+        cross = normal[:N_PARAMS, N_PARAMS:]
+        information_after = normal[N_PARAMS:, N_PARAMS:] - cross.T @ np.linalg.solve(
+            pose_block, cross
+        )
+        information_after = 0.5 * (information_after + information_after.T)
     return FrameFit(
         pose=result.state.pose,
         proportions=result.state.samples.proportions,
@@ -309,4 +372,5 @@ def fit_frame(
         outside=quality["outside"],
         rms_m=quality["rms_m"],
         iterations=result.iterations,
+        proportion_information=information_after,
     )

@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from glovedb.capsules import CapsuleSet, finger_capsules
-from glovedb.hand_model import N_JOINTS, Skeleton, forward_kinematics
+from glovedb.hand_model import N_JOINTS, Skeleton, forward_kinematics, make_skeleton
 from tracker.generative.energy.residuals import Residuals
 from tracker.generative.model import PosedHand
 
@@ -90,11 +90,16 @@ def _overlaps(
     return ra + rb - np.linalg.norm(pa - pb, axis=1), pa, pb
 
 
+_PAIRS = _pairs(make_skeleton())
+"""The pairs of the model's skeleton; proportions within their range do not change
+which cones overlap in the open hand."""
+
+
 def collision_residuals(hand: PosedHand, *, weight: float, tolerance_m: float = 0.002) -> Residuals:
     """Residuals ``weight * (overlap - tolerance_m)`` (per metre) of cones of two
     fingers that overlap by more than ``tolerance_m``."""
     skeleton = hand.samples.skeleton
-    pairs = _pairs(skeleton)
+    pairs = _PAIRS
     capsules = finger_capsules(skeleton)
     R, t = hand.pose.rotation, hand.pose.translation_m
     camera_T_bone = hand.bone_transforms.copy()
