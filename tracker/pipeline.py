@@ -32,7 +32,6 @@ Per frame:
 from __future__ import annotations
 
 import time
-from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,7 +56,7 @@ from glovedb.mesh import make_hand_mesh, pose_mesh, vertex_normals
 from glovedb.pattern import load_pattern, split_by_label
 from glovedb.posture_prior import load_posture_prior
 from glovedb.proportions import HandProportions, proportioned_mesh
-from glovedb.rotations import axis_angle_to_matrix, geodesic_angle
+from glovedb.rotations import axis_angle_to_matrix
 from glovedb.search import interpolate_pose, parse_cascade
 from glovedb.tiny_images import tiny_images_from_pixels
 from tracker.classify import ColorTable, nominal_table
@@ -70,6 +69,7 @@ from tracker.generative.observation import Observation, observe
 from tracker.generative.visibility import keypoint_visibility
 from tracker.icp import IcpResult, color_icp
 from tracker.point_cloud import HandRegion, LabeledPointCloud, hand_region, labeled_point_cloud
+from tracker.smoothing import PoseFilter, PoseFilterSettings
 
 STAGES = ("classify", "segment", "fingertips", "lookup", "icp", "fit", "total")
 """Per-frame ``timing_ms`` keys in pipeline order (``fingertips`` only with a fingertip
@@ -99,9 +99,11 @@ class TrackerSettings:
         Use every n-th point of the cloud in ICP (thesis Figure 4.11).
     icp_max_points : int
         And at most this many.
-    smoothing_frames : int
-        Frames blended by the posture smoother (1, the default, turns it off: the fit's
-        temporal term smooths without the smoother's lag).
+    smoothing : PoseFilterSettings or None
+        Speed-adaptive (One Euro) filtering of the reported pose
+        (:mod:`tracker.smoothing`); None reports the fit's pose unfiltered.
+    frame_rate_hz : float
+        Frame rate assumed for the smoothing when frames carry no timestamps.
     fit : FitSettings
         Weights and settings of the generative fit (:mod:`tracker.generative.fit`).
     reinit_every : int
@@ -116,6 +118,11 @@ class TrackerSettings:
         (and is not hidden by something in front) by more than this share.
     max_rms_m : float
         Nor one whose paired points lie farther from the model surface (RMS, metres).
+    min_fit_confidence : float
+        Nor one whose confidence (:func:`fit_quality`) is lower. Chosen on the
+        synthetic sequences: tracked frames score 0.49 or more (Tr1, Tr3, other hand
+        sizes, a ball in front, 3 px misregistration); a hand fitted into a wrong
+        local minimum while a ball hid 45 % of it, 0.37.
     hand_proportions : HandProportions or None
         The user's hand proportions (:mod:`glovedb.proportions`); None (the default)
         estimates them online over the first ``calibration_frames`` tracked frames
@@ -146,13 +153,15 @@ class TrackerSettings:
     icp_iterations: int = 25
     icp_stride: int = 1
     icp_max_points: int = 500
-    smoothing_frames: int = 1
+    smoothing: PoseFilterSettings | None = field(default_factory=PoseFilterSettings)
+    frame_rate_hz: float = 30.0
     mesh_spacing_m: float = 0.003
     fit: FitSettings = field(default_factory=FitSettings)
     reinit_every: int = 10
     min_matched: float = 0.6
     max_outside: float = 0.3
     max_rms_m: float = 0.008
+    min_fit_confidence: float = 0.4
     hand_proportions: HandProportions | None = None
     calibration_frames: int = 30
     lookup_candidates: int = 10
@@ -165,7 +174,7 @@ class TrackerSettings:
             raise ValueError(f"reinit_every: expected >= 1, got {self.reinit_every}")
         if self.calibration_frames < 0:
             raise ValueError(f"calibration_frames: expected >= 0, got {self.calibration_frames}")
-        for name in ("min_matched", "max_outside"):
+        for name in ("min_matched", "max_outside", "min_fit_confidence"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name}: expected 0 to 1, got {getattr(self, name)}")
 
@@ -241,45 +250,6 @@ class TrackingResult:
         return record
 
 
-class PoseSmoother:
-    """Blends the joint angles of the last ``frames`` estimates; follows jumps at once.
-
-    The posture is a weighted mean (weights 3:2:1 for the newest three) of the last
-    frames' postures, which removes the flicker of a lookup that switches between
-    neighbouring database entries. The rigid pose is not blended: after ICP and the
-    refinement it is accurate to about a millimetre every frame, and averaging it
-    would only make it lag behind the hand (measured on Tr3: 2.6 mm mean position
-    error with pose smoothing, 0.6 mm without). When the newest estimate is far from
-    the previous one (more than 20 degrees of rotation, 4 cm of translation or 15
-    degrees of mean joint angle) the history restarts from it.
-    """
-
-    def __init__(self, frames: int = 3) -> None:
-        self.frames = frames
-        self._history: deque[tuple[NDArray, NDArray, NDArray]] = deque(maxlen=max(frames, 1))
-
-    def reset(self) -> None:
-        self._history.clear()
-
-    def __call__(
-        self, posture: NDArray, rotation: NDArray, translation: NDArray
-    ) -> tuple[NDArray, NDArray, NDArray]:
-        if self._history:
-            last_posture, last_rotation, last_translation = self._history[-1]
-            jump = (
-                geodesic_angle(last_rotation, rotation) > np.radians(20)
-                or np.linalg.norm(last_translation - translation) > 0.04
-                or np.mean(np.abs(last_posture - posture)) > np.radians(15)
-            )
-            if jump:
-                self._history.clear()
-        self._history.append((posture, rotation, translation))
-        weights = np.arange(1, len(self._history) + 1, dtype=np.float64)
-        weights /= weights.sum()
-        postures = np.array([entry[0] for entry in self._history])
-        return weights @ postures, rotation, translation
-
-
 class Tracker(Closing):
     """Tracks the glove hand frame after frame with one posture database.
 
@@ -329,7 +299,8 @@ class Tracker(Closing):
         self._calibrated = (
             0 if self.settings.hand_proportions is None else self.settings.calibration_frames
         )
-        self._smoother = PoseSmoother(self.settings.smoothing_frames)
+        self._smoother = PoseFilter(self.settings.smoothing) if self.settings.smoothing else None
+        self._last_time_s: float | None = None
         self._sizes = self.index.resolutions
         self.cascade = self.settings.cascade or default_cascade(self._sizes)
         stages = parse_cascade(self.cascade, sizes=self._sizes)  # a bad cascade fails here
@@ -430,9 +401,15 @@ class Tracker(Closing):
             self._calibrated += 1
         hand = PosedHand(self.samples, best.pose)
         self._previous = hand
-        posture, rotation, translation = self._smoother(
-            best.pose.posture_rad, best.pose.rotation, best.pose.translation_m
+        posture, rotation, translation = (
+            best.pose.posture_rad,
+            best.pose.rotation,
+            best.pose.translation_m,
         )
+        if self._smoother is not None:
+            posture, rotation, translation = self._smoother(
+                posture, rotation, translation, self._frame_interval(frame)
+            )
         self._previous_posture = posture
         confidence = fit_quality(best.matched, best.outside, best.rms_m)
         result = self._result(frame, posture, rotation, translation, confidence)
@@ -446,10 +423,22 @@ class Tracker(Closing):
 
     def reset(self) -> None:
         """Forget the past frames (start of a new sequence); keep the proportions."""
-        self._smoother.reset()
+        if self._smoother is not None:
+            self._smoother.reset()
+        self._last_time_s = None
         self._previous_posture = None
         self._previous = None
         self._since_lookup = 0
+
+    def _frame_interval(self, frame: Frame) -> float:
+        """Seconds since the last tracked frame: from the timestamps when the source
+        gives them, else one period of ``frame_rate_hz``."""
+        period = 1.0 / self.settings.frame_rate_hz
+        now, last = frame.timestamp_s, self._last_time_s
+        self._last_time_s = now
+        if now is None or last is None or not now > last:
+            return period
+        return min(now - last, 10 * period)
 
     def _trusted(self, fit: FrameFit) -> bool:
         """Whether a fit explains the observed hand well enough to report it."""
@@ -458,6 +447,7 @@ class Tracker(Closing):
             fit.matched >= s.min_matched
             and fit.outside <= s.max_outside
             and fit.rms_m <= s.max_rms_m
+            and fit_quality(fit.matched, fit.outside, fit.rms_m) >= s.min_fit_confidence
         )
 
     def _fit(

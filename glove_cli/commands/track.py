@@ -77,7 +77,7 @@ def add_tracker_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--no-smoothing",
         action="store_true",
-        help="turn the fit's temporal term and the posture smoother off",
+        help="turn the fit's temporal term and the pose filter off",
     )
     parser.add_argument(
         "--fit-iterations",
@@ -137,9 +137,7 @@ def make_tracker(args: argparse.Namespace) -> Tracker:
             raise ValueError(f"--icp-stride: expected 1 to 64, got {args.icp_stride}")
         settings = replace(settings, icp_stride=args.icp_stride)
     if args.no_smoothing:
-        settings = replace(
-            settings, smoothing_frames=1, fit=replace(settings.fit, temporal_weight=0.0)
-        )
+        settings = replace(settings, smoothing=None, fit=replace(settings.fit, temporal_weight=0.0))
     if args.fit_iterations is not None:
         if not 1 <= args.fit_iterations <= 50:
             raise ValueError(f"--fit-iterations: expected 1 to 50, got {args.fit_iterations}")

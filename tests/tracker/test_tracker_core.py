@@ -140,7 +140,7 @@ def test_icp_recovers_a_rigid_perturbation_of_a_rendered_hand(renderer, pattern)
 def test_tracker_finds_rendered_hands_and_reports_no_hand_without_glove(small_database, renderer):
     from tracker.pipeline import Tracker, TrackerSettings
 
-    settings = TrackerSettings(cascade="8:30,16:10,32:3", smoothing_frames=1)
+    settings = TrackerSettings(cascade="8:30,16:10,32:3", smoothing=None)
     with pytest.raises(ValueError, match="64"):
         Tracker(small_database, settings=TrackerSettings(cascade="8:30,64:3"))
     rng = np.random.default_rng(3)
@@ -178,7 +178,9 @@ def test_tracker_finds_rendered_hands_and_reports_no_hand_without_glove(small_da
     ungated = replace(settings, min_confidence=0.0)
     with Tracker(small_database, settings=ungated) as tracker:
         assert not tracker.track(shirt).hand_found
-    trusting = replace(ungated, min_matched=0.0, max_outside=1.0, max_rms_m=1.0)
+    trusting = replace(
+        ungated, min_matched=0.0, max_outside=1.0, max_rms_m=1.0, min_fit_confidence=0.0
+    )
     with Tracker(small_database, settings=trusting) as tracker:
         found = tracker.track(shirt)
         assert found.hand_found and found.confidence < 0.3
@@ -190,9 +192,7 @@ def test_icp_converges_from_the_lookup_of_a_thesis_database(open_pinch_power_dat
 
     rng = np.random.default_rng(11)
     rotation_errors, position_errors = [], []
-    with Tracker(
-        open_pinch_power_database, settings=TrackerSettings(smoothing_frames=1)
-    ) as tracker:
+    with Tracker(open_pinch_power_database, settings=TrackerSettings(smoothing=None)) as tracker:
         for index in range(12):
             name = ("open", "pinch", "power")[index % 3]
             rotation = axis_angle_to_matrix(rng.normal(size=3), rng.uniform(0, np.pi))
@@ -214,7 +214,7 @@ def test_fingertip_detections_are_named_and_reported(open_pinch_power_database, 
     rotation, translation = np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.06, 0.45])
     rendering = renderer.render(named_posture("open"), rotation, translation)
     frame = Frame(0, rendering.color, rendering.depth_m, KINECT_V1)
-    settings = TrackerSettings(smoothing_frames=1, fingertip_model="default")
+    settings = TrackerSettings(smoothing=None, fingertip_model="default")
     with Tracker(open_pinch_power_database, settings=settings) as tracker:
         result = tracker.track(frame)
         skeleton = tracker.skeleton

@@ -34,13 +34,16 @@ from tracker.generative.energy.fingertips import fingertip_residuals
 from tracker.generative.energy.limits import limit_residuals
 from tracker.generative.energy.prior import prior_residuals
 from tracker.generative.energy.reference import NAME as REFERENCE
-from tracker.generative.energy.reference import reference_residuals
+from tracker.generative.energy.reference import hidden_joints, reference_residuals
 from tracker.generative.energy.residuals import Residuals
 from tracker.generative.energy.silhouette import silhouette_residuals
 from tracker.generative.energy.temporal import temporal_residuals
 from tracker.generative.model import N_PARAMS, HandPose, HandSamples, PosedHand
 from tracker.generative.observation import Observation
 from tracker.generative.solver import levenberg_marquardt
+
+HIDDEN_EDGE_PX = 4.0
+"""Pixels beyond the silhouette margin before a sample counts as hidden by an object."""
 
 FLEXION_JOINTS = np.array([1, 2, 3] + [4 * f + k for f in range(1, 5) for k in (1, 2, 3)])
 """The three flexion angles of each finger, thumb first (the thumb's CMC flexion moves
@@ -91,10 +94,14 @@ class FitSettings:
         Per metre of overlap of two fingers.
     temporal_weight : float
         Per metre of RMS keypoint motion from the previous frame.
+    temporal_scale_m : float
+        Keypoint motion beyond this costs less and less (Cauchy loss).
     reference_weight : float
         Per radian of a joint angle's departure from the start's posture.
     reference_scale_deg : float
         Departures beyond this cost less and less (Cauchy loss), degrees.
+    hidden_reference_weight : float
+        Per radian, for joints whose finger an object hides at the start.
     fingertip_weight : float
         Per metre of a named fingertip detection beyond its dead band.
     fingertip_deadband_m : float
@@ -124,8 +131,10 @@ class FitSettings:
     limit_weight: float = 30.0
     collision_weight: float = 300.0
     temporal_weight: float = 15.0
+    temporal_scale_m: float = 0.02
     reference_weight: float = 2.0
     reference_scale_deg: float = 10.0
+    hidden_reference_weight: float = 20.0
     fingertip_weight: float = 300.0
     fingertip_deadband_m: float = 0.015
     proportion_weight: float = 3.0
@@ -154,8 +163,7 @@ class FrameFit:
     proportions : HandProportions
         Those the fit ended with (the start's unless they were estimated).
     energy : float
-        Energy at ``pose`` without the reference term (which differs between starts):
-        what starts are compared by.
+        Energy at ``pose`` without the reference term (which differs between starts).
     start_energy : float
     terms : dict of str to float
         Energy of every term at ``pose``.
@@ -168,6 +176,8 @@ class FrameFit:
     rms_m : float
         RMS point-to-plane distance of the paired points (before the Huber loss).
     iterations : int
+    hidden : (20,) bool or None
+        Joints whose finger an object hid at the start (held by the reference term).
     proportion_information : (7, 7) float64 or None
         When the proportions were estimated: the information about them after this
         frame (module docstring), to give to the next frame's fit.
@@ -182,6 +192,7 @@ class FrameFit:
     outside: float = 1.0
     rms_m: float = np.inf
     iterations: int = 0
+    hidden: NDArray[np.bool_] | None = None
     proportion_information: NDArray[np.float64] | None = None
 
 
@@ -201,6 +212,7 @@ def frame_energy(
     previous_keypoints_m: NDArray[np.float64] | None = None,
     tip_targets_m: NDArray[np.float64] | None = None,
     reference_rad: NDArray[np.float64] | None = None,
+    hidden: NDArray[np.bool_] | None = None,
     proportions: bool = False,
 ) -> tuple[list[Residuals], dict[str, float]]:
     """Every term's residuals at one pose, and the fit's quality measures.
@@ -230,12 +242,17 @@ def frame_energy(
         collision_residuals(hand, weight=s.collision_weight),
     ]
     if previous_keypoints_m is not None and s.temporal_weight > 0:
-        terms.append(temporal_residuals(hand, previous_keypoints_m, weight=s.temporal_weight))
+        terms.append(
+            temporal_residuals(
+                hand, previous_keypoints_m, weight=s.temporal_weight, scale_m=s.temporal_scale_m
+            )
+        )
     if reference_rad is not None and s.reference_weight > 0:
         terms.append(
             reference_residuals(
                 hand, reference_rad, weight=s.reference_weight,
-                scale_rad=np.radians(s.reference_scale_deg),
+                scale_rad=np.radians(s.reference_scale_deg), hidden=hidden,
+                hidden_weight=s.hidden_reference_weight,
             )
         )  # fmt: skip
     if tip_targets_m is not None and s.fingertip_weight > 0:
@@ -309,6 +326,12 @@ def fit_frame(
         "previous_keypoints_m": previous_keypoints_m,
         "tip_targets_m": tip_targets_m,
         "reference_rad": start.posture_rad,
+        "hidden": hidden_joints(
+            PosedHand(samples, start),
+            observation,
+            margin_px=settings.silhouette_margin_px + HIDDEN_EDGE_PX,
+            depth_margin_m=settings.depth_margin_m,
+        ),
         "proportions": estimate_proportions,
     }
 
@@ -372,5 +395,6 @@ def fit_frame(
         outside=quality["outside"],
         rms_m=quality["rms_m"],
         iterations=result.iterations,
+        hidden=kwargs["hidden"],  # type: ignore[arg-type]
         proportion_information=information_after,
     )

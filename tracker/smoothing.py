@@ -1,0 +1,151 @@
+"""Speed-adaptive smoothing of the reported pose: the One Euro filter.
+
+A hand held still should not tremble with the sensor's noise, and a moving hand
+should not lag. The One Euro filter (Casiez, Roussel and Vogel, "1 Euro Filter: A
+Simple Speed-based Low-pass Filter for Noisy Input in Interactive Systems", CHI 2012)
+does both: an exponential low-pass filter whose cutoff frequency rises with the
+signal's speed::
+
+    cutoff = min_cutoff_hz + beta * |speed|,   alpha = 1 / (1 + 1 / (2 pi cutoff dt))
+
+applied per coordinate, with the speed itself low-passed at ``derivative_cutoff_hz``.
+:class:`PoseFilter` applies it to the 20 joint angles (beta per radian/s), the wrist
+position (per metre/s) and the rotation (as the rotation vector of the step from the
+last filtered rotation, per radian/s). Only the reported pose is filtered: the fit
+starts every frame from its own unfiltered solution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from glovedb.rotations import axis_angle_to_matrix, matrix_to_quaternion
+
+
+def smoothing_factor(cutoff_hz: NDArray[np.float64] | float, dt_s: float) -> NDArray[np.float64]:
+    """``alpha`` of an exponential filter with the given cutoff, for a step ``dt_s``."""
+    tau = 1.0 / (2.0 * np.pi * np.asarray(cutoff_hz, dtype=np.float64))
+    return 1.0 / (1.0 + tau / dt_s)
+
+
+@dataclass(frozen=True)
+class OneEuroSettings:
+    """One channel's parameters (module docstring).
+
+    Attributes
+    ----------
+    min_cutoff_hz : float
+        Cutoff of a still signal: lower is smoother and lags more when slow.
+    beta : float
+        Cutoff added per unit of speed (the channel's unit per second).
+    derivative_cutoff_hz : float
+        Cutoff of the speed estimate.
+    """
+
+    min_cutoff_hz: float
+    beta: float
+    derivative_cutoff_hz: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (self.min_cutoff_hz > 0 and self.derivative_cutoff_hz > 0 and self.beta >= 0):
+            raise ValueError(f"OneEuroSettings: cutoffs must be > 0 and beta >= 0, got {self}")
+
+
+class OneEuroFilter:
+    """The One Euro filter over a vector of independent coordinates."""
+
+    def __init__(self, settings: OneEuroSettings) -> None:
+        self.settings = settings
+        self._value: NDArray[np.float64] | None = None
+        self._speed: NDArray[np.float64] | None = None
+
+    def reset(self) -> None:
+        self._value = self._speed = None
+
+    def __call__(self, value: NDArray[np.float64], dt_s: float) -> NDArray[np.float64]:
+        """The filtered value of a new sample ``dt_s`` seconds after the last."""
+        value = np.asarray(value, dtype=np.float64)
+        if self._value is None or self._speed is None:
+            self._value, self._speed = value.copy(), np.zeros_like(value)
+            return value.copy()
+        s = self.settings
+        speed = (value - self._value) / dt_s
+        self._speed += smoothing_factor(s.derivative_cutoff_hz, dt_s) * (speed - self._speed)
+        alpha = smoothing_factor(s.min_cutoff_hz + s.beta * np.abs(self._speed), dt_s)
+        self._value = self._value + alpha * (value - self._value)
+        return self._value.copy()
+
+
+@dataclass(frozen=True)
+class PoseFilterSettings:
+    """The One Euro settings of the three parts of a hand pose.
+
+    Defaults: chosen on a rendered still hand and the moving Tr1 with Kinect-like
+    noise (docs/tracker.md, "Temporal smoothing").
+    """
+
+    posture: OneEuroSettings = OneEuroSettings(min_cutoff_hz=0.3, beta=10.0)
+    translation: OneEuroSettings = OneEuroSettings(min_cutoff_hz=0.3, beta=300.0)
+    rotation: OneEuroSettings = OneEuroSettings(min_cutoff_hz=0.3, beta=20.0)
+
+
+class PoseFilter:
+    """One Euro filtering of posture, wrist position and rotation (module docstring).
+
+    The rotation is filtered on its error: the rotation vector ``e`` of the turn from
+    the last output to the new estimate; the output turns by ``alpha * e``, with
+    ``alpha`` from the cutoff at the low-passed angular speed ``|e| / dt``.
+    """
+
+    def __init__(self, settings: PoseFilterSettings | None = None) -> None:
+        self.settings = settings or PoseFilterSettings()
+        self._posture = OneEuroFilter(self.settings.posture)
+        self._translation = OneEuroFilter(self.settings.translation)
+        self._rotation: NDArray[np.float64] | None = None
+        self._angular_speed = 0.0
+
+    def reset(self) -> None:
+        self._posture.reset()
+        self._translation.reset()
+        self._rotation = None
+        self._angular_speed = 0.0
+
+    def __call__(
+        self,
+        posture_rad: NDArray[np.float64],
+        rotation: NDArray[np.float64],
+        translation_m: NDArray[np.float64],
+        dt_s: float,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """The filtered ``(posture (20,), rotation (3, 3), translation (3,))``."""
+        posture = self._posture(posture_rad, dt_s)
+        translation = self._translation(translation_m, dt_s)
+        if self._rotation is None:
+            self._rotation = np.asarray(rotation, dtype=np.float64).copy()
+            return posture, self._rotation.copy(), translation
+        s = self.settings.rotation
+        error = rotation_vector(rotation @ self._rotation.T)
+        speed = float(np.linalg.norm(error)) / dt_s
+        self._angular_speed += float(smoothing_factor(s.derivative_cutoff_hz, dt_s)) * (
+            speed - self._angular_speed
+        )
+        alpha = float(smoothing_factor(s.min_cutoff_hz + s.beta * self._angular_speed, dt_s))
+        step = alpha * error
+        size = float(np.linalg.norm(step))
+        turn = axis_angle_to_matrix(step / size, size) if size > 0 else np.eye(3)
+        self._rotation = turn @ self._rotation
+        return posture, self._rotation.copy(), translation
+
+
+def rotation_vector(rotation: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(3,)`` axis times angle (radians, at most pi) of a rotation matrix."""
+    w, x, y, z = matrix_to_quaternion(rotation)
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    sine = float(np.linalg.norm([x, y, z]))
+    if sine < 1e-12:
+        return 2.0 * np.array([x, y, z])
+    return 2.0 * np.arctan2(sine, w) * np.array([x, y, z]) / sine
