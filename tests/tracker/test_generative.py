@@ -269,3 +269,11 @@ def test_proportions_are_recovered_from_frames_of_a_larger_hand(samples):
     found = estimate.proportions.as_vector()
     assert abs(found[0] - 1.1) < 0.03
     assert np.all(np.abs(found[2:5] * found[0] - 1.12 * 1.1) < 0.06)
+
+
+def test_directional_rows_are_the_projected_vertex_jacobian(samples):
+    hand = PosedHand(samples, _pose("power"))
+    ids = np.arange(0, len(samples), 11)
+    directions = np.random.default_rng(3).normal(size=(len(ids), 3))
+    expected = np.einsum("pi,pik->pk", directions, hand.vertex_jacobian(ids))
+    np.testing.assert_allclose(hand.directional_rows(ids, directions), expected, atol=1e-12)

@@ -118,7 +118,7 @@ class FitSettings:
 
     iterations: int = 6
     tolerance: float = 1e-3
-    max_points: int = 500
+    max_points: int = 1500
     sample_spacing: int = 2
     data_weight: float = 1000.0
     data_huber_m: float = 0.006

@@ -44,6 +44,7 @@ from glovedb.mesh import HandMesh, vertex_normals
 from glovedb.pattern import LabeledVertices
 from glovedb.proportions import N_PROPORTIONS, HandProportions, proportioned_mesh
 from glovedb.rotations import axis_angle_to_matrix
+from tracker.generative import _kernels
 
 N_PARAMS = 6 + N_JOINTS
 """Unknowns of one frame's fit: rotation step (3), translation step (3), angles (20)."""
@@ -261,6 +262,31 @@ class PosedHand:
         moved = (weights[:, None, :] * MOVES[None]) @ by_bone  # (P, 20, 3)
         share = weights @ MOVES.T  # (P, 20)
         return self._jacobian(self.points_m[ids], moved, share)
+
+    def directional_rows(self, sample_ids: ArrayLike, directions: ArrayLike) -> NDArray[np.float64]:
+        """``(P, 26)`` rows ``d_p . J_p``: the derivatives of samples' positions along
+        given directions (a point-to-plane residual's normal, a silhouette residual's
+        image gradient), by the 26 unknowns.
+
+        The same as projecting :meth:`vertex_jacobian` onto ``directions``, in one
+        compiled pass over the samples' bones.
+
+        Parameters
+        ----------
+        sample_ids : (P,) int
+        directions : (P, 3) float
+            Camera frame.
+        """
+        ids = np.ascontiguousarray(sample_ids, dtype=np.int64)
+        along = np.ascontiguousarray(directions, dtype=np.float64)
+        rows = np.empty((len(ids), N_PARAMS))
+        _kernels.directional_vertex_rows(
+            ids, self._weights, self.samples.mesh.rest_vertices_m,
+            np.ascontiguousarray(self._skinning), MOVES, self._axes_hand, self._pivots_hand,
+            self.pose.rotation, self.pose.translation_m,
+            np.ascontiguousarray(self.points_m[ids]), along, rows,
+        )  # fmt: skip
+        return rows
 
     def keypoint_jacobian(self, keypoint_ids: ArrayLike) -> NDArray[np.float64]:
         """``(K, 3, 26)`` derivatives of keypoints (camera frame) by the 26 unknowns."""

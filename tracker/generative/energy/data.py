@@ -70,7 +70,7 @@ def data_residuals(
     normals = hand.normals[sample]
     raw = np.einsum("ij,ij->i", hand.points_m[sample] - observed_m[kept], normals)
     rows = weight / np.sqrt(len(observed_m)) * huber_weights(raw, huber_m)
-    jacobian = rows[:, None] * project_rows(hand.vertex_jacobian(sample), normals)
+    jacobian = rows[:, None] * hand.directional_rows(sample, normals)
     by_proportions = None
     if proportions:
         by_proportions = rows[:, None] * project_rows(hand.proportion_jacobian(sample), normals)

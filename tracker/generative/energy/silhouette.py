@@ -113,7 +113,7 @@ def silhouette_residuals(
     direction = np.concatenate(directions)
     value = scale * np.concatenate(values)
     samples = chosen[index]
-    jacobian = scale * project_rows(hand.vertex_jacobian(samples), direction)
+    jacobian = scale * hand.directional_rows(samples, direction)
     by_proportions = None
     if proportions:
         by_proportions = scale * project_rows(hand.proportion_jacobian(samples), direction)
