@@ -39,7 +39,7 @@ def test_pose_filter_keeps_a_still_rotation_and_follows_a_turning_one():
     pose_filter = PoseFilter()
     errors, raw = [], []
     for k in range(90):
-        noise = axis_angle_to_matrix(rng.normal(size=3), np.radians(0.5))
+        noise = axis_angle_to_matrix(rng.normal(size=3), np.radians(0.1))
         turning = axis_angle_to_matrix(np.array([1.0, 0.0, 0.0]), np.radians(2.0) * max(k - 45, 0))
         truth = turning @ base
         _, rotation, _ = pose_filter(np.zeros(20), noise @ truth, np.zeros(3), DT)
