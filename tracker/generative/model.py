@@ -127,10 +127,6 @@ class HandPose:
             self.posture_rad + delta[6:], turn @ self.rotation, self.translation_m + delta[3:6]
         )
 
-    def as_vector(self) -> NDArray[np.float64]:
-        """``(12 + 20,)`` rotation (row-major), translation and posture, for distances."""
-        return np.concatenate([self.rotation.ravel(), self.translation_m, self.posture_rad])
-
 
 @dataclass(frozen=True)
 class HandSamples:
@@ -315,20 +311,6 @@ class PosedHand:
             moved = self.samples.with_proportions(HandProportions.from_vector(stepped))
             points = PosedHand(_subset(moved, ids), self.pose).points_m
             columns.append((points - self.points_m[ids]) / _PROPORTION_STEP)
-        return np.stack(columns, axis=2)
-
-    def proportion_keypoint_jacobian(self, keypoint_ids: ArrayLike) -> NDArray[np.float64]:
-        """``(K, 3, 7)`` forward-difference derivatives of keypoints by the proportions."""
-        ids = np.asarray(keypoint_ids, dtype=np.int64)
-        base = self.samples.proportions.as_vector()
-        columns = []
-        for k in range(N_PROPORTIONS):
-            stepped = base.copy()
-            stepped[k] += _PROPORTION_STEP
-            skeleton = self.samples.with_proportions(HandProportions.from_vector(stepped)).skeleton
-            hand = forward_kinematics(self.pose.posture_rad, skeleton).keypoints_m[0, ids]
-            points = hand @ self.pose.rotation.T + self.pose.translation_m
-            columns.append((points - self.keypoints_m[ids]) / _PROPORTION_STEP)
         return np.stack(columns, axis=2)
 
     def _jacobian(

@@ -44,8 +44,6 @@ class Observation:
         Its gradient along u and v.
     depth_m : (h, w) float32
         Observed depth over the crop (0: none).
-    hand_pixels : int
-        Glove pixels of the frame.
     """
 
     points_m: NDArray[np.float64]
@@ -55,7 +53,6 @@ class Observation:
     outside_px: NDArray[np.float32]
     gradient: NDArray[np.float32]
     depth_m: NDArray[np.float32]
-    hand_pixels: int
 
 
 def observe(
@@ -111,5 +108,4 @@ def observe(
         outside_px=np.asarray(outside, dtype=np.float32),
         gradient=np.asarray(gradient, dtype=np.float32),
         depth_m=np.ascontiguousarray(depth_m[low[1] : high[1], low[0] : high[0]]),
-        hand_pixels=len(region),
     )
