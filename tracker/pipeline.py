@@ -128,7 +128,8 @@ class TrackerSettings:
         estimates them online over the first ``calibration_frames`` tracked frames
         and then keeps them.
     calibration_frames : int
-        Tracked frames over which the proportions are estimated (0: keep the model's).
+        Fits that estimate the proportions (0: keep the model's).
+
     lookup_candidates : int
         Entries the cascade's last stage keeps for the temporal re-ranking (at least
         its own k are blended).

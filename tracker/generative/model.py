@@ -40,7 +40,7 @@ from glovedb.hand_model import (
     Skeleton,
     forward_kinematics,
 )
-from glovedb.mesh import HandMesh, vertex_normals
+from glovedb.mesh import HandMesh, skin, skinning_matrices, vertex_normals
 from glovedb.pattern import LabeledVertices
 from glovedb.proportions import N_PROPORTIONS, HandProportions, proportioned_mesh
 from glovedb.rotations import axis_angle_to_matrix
@@ -303,15 +303,20 @@ class PosedHand:
         """``(P, 3, 7)`` forward-difference derivatives of samples (camera frame) by
         the hand proportions (:meth:`glovedb.proportions.HandProportions.as_vector`)."""
         ids = np.asarray(sample_ids, dtype=np.int64)
+        model = self.samples.model
+        chosen = HandMesh(
+            model.skeleton, model.rest_vertices_m[ids], model.faces, model.weights[ids]
+        )
         base = self.samples.proportions.as_vector()
         columns = []
         for k in range(N_PROPORTIONS):
             stepped = base.copy()
             stepped[k] += _PROPORTION_STEP
-            moved = self.samples.with_proportions(HandProportions.from_vector(stepped))
-            points = PosedHand(_subset(moved, ids), self.pose).points_m
-            columns.append((points - self.points_m[ids]) / _PROPORTION_STEP)
-        return np.stack(columns, axis=2)
+            moved = proportioned_mesh(chosen, HandProportions.from_vector(stepped))
+            hand = skin(moved, skinning_matrices(self.pose.posture_rad, moved.skeleton))[0]
+            points = hand @ self.pose.rotation.T + self.pose.translation_m
+            columns.append(points - self.points_m[ids])
+        return np.stack(columns, axis=2) / _PROPORTION_STEP
 
     def _jacobian(
         self, points: NDArray[np.float64], moved_hand: NDArray[np.float64], share: NDArray
@@ -342,11 +347,3 @@ def _x_after_z(frame: NDArray[np.float64], posture_rad: NDArray[np.float64]) -> 
         z_angle[joint] = z_of_bone.get(int(bone), 0.0)
     # Rz(z) @ e_x = (cos z, sin z, 0)
     return frame[:, :, 0] * np.cos(z_angle)[:, None] + frame[:, :, 1] * np.sin(z_angle)[:, None]
-
-
-def _subset(samples: HandSamples, ids: NDArray[np.int64]) -> HandSamples:
-    mesh = samples.mesh
-    sub = HandMesh(mesh.skeleton, mesh.rest_vertices_m[ids], mesh.faces, mesh.weights[ids])
-    return replace(
-        samples, mesh=sub, rest_normals=samples.rest_normals[ids], labels=samples.labels[ids]
-    )

@@ -61,7 +61,8 @@ def data_residuals(
     if len(members) == 0 or len(observed_m) == 0:
         return Residuals.empty(NAME, proportions=proportions), 0.0
     tree = class_tree(hand.points_m[members], hand.samples.labels[members])
-    distance, nearest = tree.query(np.column_stack([observed_m, class_coordinate(observed_labels)]))
+    query = np.column_stack([observed_m, class_coordinate(observed_labels)])
+    distance, nearest = tree.query(query)
     kept = np.flatnonzero(distance < gate_m)  # another class is 100 m away
     matched = len(kept) / len(observed_m)
     if len(kept) == 0:
