@@ -365,24 +365,19 @@ class Tracker(Closing):
         )
         lap("segment")
 
-        starts: list[HandPose] = []
-        if self._previous is not None:
-            starts.append(self._previous.pose)
+        warm = None if self._previous is None else self._previous.pose
         detections, tip_targets = None, None
         fits: list[FrameFit] = []
-        if starts and self.fingertips is not None:
-            detections = self._named_detections(frame, starts[0])
-            tip_targets = tip_targets_of(detections)
-            lap("fingertips")
-        if starts:
-            fits.append(self._fit(observation, starts[0], tip_targets))
+        if warm is not None:
+            if self.fingertips is not None:
+                detections = self._named_detections(frame, warm)
+                tip_targets = tip_targets_of(detections)
+                lap("fingertips")
+            fits.append(self._fit(observation, warm, tip_targets))
             lap("fit")
         self._since_lookup += 1
-        if (
-            not fits
-            or not self._trusted(fits[0])
-            or self._since_lookup >= self.settings.reinit_every
-        ):
+        lookup_due = self._since_lookup >= self.settings.reinit_every
+        if not fits or not self._trusted(fits[0]) or lookup_due:
             self._since_lookup = 0
             looked_up = self._lookup_start(frame, region, cloud, lap)
             if looked_up is not None:

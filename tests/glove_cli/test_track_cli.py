@@ -92,6 +92,8 @@ def test_bad_databases_and_inputs_exit_2(small_database, tmp_path):
         ("--min-confidence", "2", "--min-confidence: expected 0 to 1"),
         ("--icp-stride", "0", "--icp-stride: expected 1 to 64"),
         ("--fit-iterations", "100000", "--fit-iterations: expected 1 to 50"),
+        ("--hand", str(tmp_path / "nohand.json"), "no such hand proportions file"),
+        ("--hand", str(garbage), "not a hand proportions file"),
         ("--cascade", "8:0", "cascade: size and k must be positive, got 8:0"),
         ("--temporal-prior", "inf", "--temporal-prior: expected 0 or more"),
         ("--fingertip-weight", "2", "--fingertip-weight: needs --fingertips"),

@@ -1,8 +1,8 @@
 """One frame's generative fit: the energy of thesis ch. 6, summed and minimised.
 
-``E = E_data + E_silhouette + E_prior + E_limits + E_collision + E_temporal +
-E_fingertips`` (one module each in :mod:`tracker.generative.energy`), minimised over
-the 26 unknowns of :mod:`tracker.generative.model` by
+``E = E_data + E_silhouette + E_prior + E_reference + E_limits + E_collision +
+E_temporal + E_fingertips`` (one module each in :mod:`tracker.generative.energy`),
+minimised over the 26 unknowns of :mod:`tracker.generative.model` by
 :func:`tracker.generative.solver.levenberg_marquardt`; while a user's hand
 proportions are being estimated, over the 7 proportions as well.
 

@@ -11,6 +11,7 @@ the sum.
 | :mod:`.data` | glove points to the model surface of their color (point-to-plane) |
 | :mod:`.silhouette` | model outside the hand or in front of the depth (occlusions) |
 | :mod:`.prior` | Gaussian posture prior learned from the project's natural postures |
+| :mod:`.reference` | unseen joints keep the start's angles; joints an object hides are held |
 | :mod:`.limits` | joint limits |
 | :mod:`.collision` | fingers that pass into each other |
 | :mod:`.temporal` | closeness to the previous frame |
