@@ -214,6 +214,7 @@ def frame_energy(
     reference_rad: NDArray[np.float64] | None = None,
     hidden: NDArray[np.bool_] | None = None,
     proportions: bool = False,
+    proportion_jacobian: NDArray[np.float64] | None = None,
 ) -> tuple[list[Residuals], dict[str, float]]:
     """Every term's residuals at one pose, and the fit's quality measures.
 
@@ -223,7 +224,7 @@ def frame_energy(
     quality : dict
         ``matched``, ``outside`` and ``rms_m`` (see :class:`FrameFit`).
     """
-    hand = PosedHand(samples, pose)
+    hand = PosedHand(samples, pose, proportion_jacobian=proportion_jacobian)
     s = settings
     data, matched = data_residuals(
         hand, observation.points_m, observation.labels, weight=s.data_weight,
@@ -333,6 +334,13 @@ def fit_frame(
             depth_margin_m=settings.depth_margin_m,
         ),
         "proportions": estimate_proportions,
+        # The proportions' derivatives change little over one frame's solve: computed
+        # once at the start for all samples, they serve every iteration.
+        "proportion_jacobian": PosedHand(samples, start).proportion_jacobian(
+            np.arange(len(samples))
+        )
+        if estimate_proportions
+        else None,
     }
 
     last: list[tuple[_State, list[Residuals], dict[str, float]]] = []

@@ -203,6 +203,9 @@ class PosedHand:
     ----------
     samples : HandSamples
     pose : HandPose
+    proportion_jacobian : (S, 3, 7) float, optional
+        Derivatives of all samples by the proportions, computed before (at a nearby
+        pose): :meth:`proportion_jacobian` then picks from them instead of computing.
 
     Attributes
     ----------
@@ -216,9 +219,16 @@ class PosedHand:
         ``hand_T_bone`` of every bone.
     """
 
-    def __init__(self, samples: HandSamples, pose: HandPose) -> None:
+    def __init__(
+        self,
+        samples: HandSamples,
+        pose: HandPose,
+        *,
+        proportion_jacobian: NDArray[np.float64] | None = None,
+    ) -> None:
         self.samples = samples
         self.pose = pose
+        self._proportion_jacobian = proportion_jacobian
         R, t = pose.rotation, pose.translation_m
         both = forward_kinematics(
             np.vstack([pose.posture_rad, np.zeros(N_JOINTS)]), samples.skeleton
@@ -303,6 +313,8 @@ class PosedHand:
         """``(P, 3, 7)`` forward-difference derivatives of samples (camera frame) by
         the hand proportions (:meth:`glovedb.proportions.HandProportions.as_vector`)."""
         ids = np.asarray(sample_ids, dtype=np.int64)
+        if self._proportion_jacobian is not None:
+            return self._proportion_jacobian[ids]
         model = self.samples.model
         chosen = HandMesh(
             model.skeleton, model.rest_vertices_m[ids], model.faces, model.weights[ids]
