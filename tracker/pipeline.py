@@ -129,7 +129,6 @@ class TrackerSettings:
         and then keeps them.
     calibration_frames : int
         Fits that estimate the proportions (0: keep the model's).
-
     lookup_candidates : int
         Entries the cascade's last stage keeps for the temporal re-ranking (at least
         its own k are blended).
@@ -140,9 +139,9 @@ class TrackerSettings:
     fingertip_model : str or None
         A fingertip model (``.npz``, :mod:`tracker.fingertips.forest`), or
         ``"default"`` for the shipped one: its detections take part in the
-        refinement. None (the default) detects no fingertips.
+        generative fit. None (the default) detects no fingertips.
     mesh_spacing_m : float
-        Resolution of the model surface used by ICP.
+        Resolution of the model's mesh (ICP and the generative fit's samples).
     workers : int or None
         Search threads (None: all cores).
     """
@@ -171,6 +170,8 @@ class TrackerSettings:
     workers: int | None = None
 
     def __post_init__(self) -> None:
+        if not self.frame_rate_hz > 0:
+            raise ValueError(f"frame_rate_hz: expected > 0, got {self.frame_rate_hz}")
         if self.reinit_every < 1:
             raise ValueError(f"reinit_every: expected >= 1, got {self.reinit_every}")
         if self.calibration_frames < 0:
