@@ -277,3 +277,28 @@ def test_directional_rows_are_the_projected_vertex_jacobian(samples):
     directions = np.random.default_rng(3).normal(size=(len(ids), 3))
     expected = np.einsum("pi,pik->pk", directions, hand.vertex_jacobian(ids))
     np.testing.assert_allclose(hand.directional_rows(ids, directions), expected, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda: FitSettings(data_weight=-1.0), "data_weight"),
+        (lambda: FitSettings(iterations=0), "iterations"),
+        (lambda: FitSettings(max_points=10), "max_points"),
+    ],
+)
+def test_fit_settings_refuse_bad_values(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("reinit_every", 0), ("min_matched", 1.5), ("min_fit_confidence", -0.1),
+     ("calibration_frames", -1), ("frame_rate_hz", 0.0)],
+)  # fmt: skip
+def test_tracker_settings_refuse_bad_values(field, value):
+    from tracker.pipeline import TrackerSettings
+
+    with pytest.raises(ValueError, match=field):
+        TrackerSettings(**{field: value})
