@@ -172,6 +172,12 @@ def test_prior_limits_temporal_and_fingertip_jacobians(samples):
     )
 
 
+def test_fingertips_without_targets_add_nothing(samples):
+    hand = PosedHand(samples, _pose("power"))
+    residuals = fingertip_residuals(hand, np.full((5, 3), np.nan), weight=300.0, deadband_m=0.01)
+    assert len(residuals) == 0 and residuals.jacobian.shape == (0, N_PARAMS)
+
+
 def test_collision_term_pushes_crossed_fingers_apart(samples):
     crossed = named_posture("open")
     crossed[JOINT_NAMES.index("index_mcp_abd")] = np.radians(-20)

@@ -59,6 +59,8 @@ def fingertip_residuals(
     deadband_m : float
     """
     named = np.flatnonzero(np.isfinite(targets_m).all(axis=1))
+    if len(named) == 0:
+        return Residuals.empty(NAME)
     tips = np.asarray(FINGERTIP_KEYPOINTS)[named]
     raw = (hand.keypoints_m[tips] - targets_m[named]).reshape(-1)
     rows = weight * deadband_weights(raw, deadband_m)
