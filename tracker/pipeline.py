@@ -396,7 +396,7 @@ class Tracker(Closing):
             self._set_proportions(best.proportions)
             self._proportion_information = best.proportion_information
             self._calibrated += 1
-        hand = PosedHand(self.samples, best.pose)
+        hand = best.hand
         self._previous = hand
         posture, rotation, translation = (
             best.pose.posture_rad,

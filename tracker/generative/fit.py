@@ -160,6 +160,8 @@ class FrameFit:
     Attributes
     ----------
     pose : HandPose
+    hand : PosedHand
+        The hand model posed at ``pose``.
     proportions : HandProportions
         Those the fit ended with (the start's unless they were estimated).
     energy : float
@@ -184,6 +186,7 @@ class FrameFit:
     """
 
     pose: HandPose
+    hand: PosedHand
     proportions: HandProportions
     energy: float
     start_energy: float
@@ -215,7 +218,7 @@ def frame_energy(
     hidden: NDArray[np.bool_] | None = None,
     proportions: bool = False,
     proportion_jacobian: NDArray[np.float64] | None = None,
-) -> tuple[list[Residuals], dict[str, float]]:
+) -> tuple[list[Residuals], dict[str, float], PosedHand]:
     """Every term's residuals at one pose, and the fit's quality measures.
 
     Returns
@@ -223,6 +226,8 @@ def frame_energy(
     terms : list of Residuals
     quality : dict
         ``matched``, ``outside`` and ``rms_m`` (see :class:`FrameFit`).
+    hand : PosedHand
+        The hand posed at ``pose``.
     """
     hand = PosedHand(samples, pose, proportion_jacobian=proportion_jacobian)
     s = settings
@@ -264,7 +269,7 @@ def frame_energy(
         )
     raw = data.values * np.sqrt(max(len(observation.points_m), 1)) / s.data_weight
     rms = float(np.sqrt(np.mean(raw**2))) if len(raw) else np.inf
-    return terms, {"matched": matched, "outside": outside, "rms_m": rms}
+    return terms, {"matched": matched, "outside": outside, "rms_m": rms}, hand
 
 
 def initial_proportion_weights(settings: FitSettings) -> NDArray[np.float64]:
@@ -321,6 +326,7 @@ def fit_frame(
     pull_rows = np.linalg.cholesky(information).T
     flexion = np.degrees(start.posture_rad[FLEXION_JOINTS].reshape(5, 3).sum(axis=1))
     extended = (flexion < settings.extended_finger_deg).astype(np.float64)
+    start_hand = PosedHand(samples, start)
     kwargs = {
         "settings": settings,
         "prior": prior,
@@ -328,7 +334,7 @@ def fit_frame(
         "tip_targets_m": tip_targets_m,
         "reference_rad": start.posture_rad,
         "hidden": hidden_joints(
-            PosedHand(samples, start),
+            start_hand,
             observation,
             margin_px=settings.silhouette_margin_px + HIDDEN_EDGE_PX,
             depth_margin_m=settings.depth_margin_m,
@@ -336,21 +342,19 @@ def fit_frame(
         "proportions": estimate_proportions,
         # The proportions' derivatives change little over one frame's solve: computed
         # once at the start for all samples, they serve every iteration.
-        "proportion_jacobian": PosedHand(samples, start).proportion_jacobian(
-            np.arange(len(samples))
-        )
+        "proportion_jacobian": start_hand.proportion_jacobian(np.arange(len(samples)))
         if estimate_proportions
         else None,
     }
 
-    last: list[tuple[_State, list[Residuals], dict[str, float]]] = []
-    last_jacobian: list[NDArray[np.float64]] = []
+    # The last evaluation: its state, its terms, quality and posed hand, its Jacobian.
+    last: list[tuple[_State, list[Residuals], dict[str, float], PosedHand, NDArray]] = []
 
     def evaluate(state: _State) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        terms, quality = frame_energy(state.samples, state.pose, observation, **kwargs)  # type: ignore[arg-type]
-        last[:] = [(state, terms, quality)]
+        terms, quality, hand = frame_energy(state.samples, state.pose, observation, **kwargs)  # type: ignore[arg-type]
         residual = np.concatenate([t.values for t in terms])
         jacobian = np.concatenate([t.jacobian for t in terms])
+        last[:] = [(state, terms, quality, hand, jacobian)]
         if not estimate_proportions:
             return residual, jacobian
         by_proportions = np.concatenate(
@@ -367,7 +371,7 @@ def fit_frame(
         jacobian = np.block(
             [[jacobian, by_proportions], [np.zeros((N_PROPORTIONS, N_PARAMS)), pull_rows]]
         )
-        last_jacobian[:] = [jacobian]
+        last[:] = [(state, terms, quality, hand, jacobian)]
         return residual, jacobian
 
     def advance(state: _State, delta: NDArray[np.float64]) -> _State:
@@ -383,10 +387,10 @@ def fit_frame(
     )  # fmt: skip
     if last[0][0] is not result.state:  # it was evaluated before a refused step
         evaluate(result.state)
-    _, terms, quality = last[0]
+    _, terms, quality, hand, jacobian = last[0]
     information_after = None
     if estimate_proportions:
-        normal = last_jacobian[0].T @ last_jacobian[0]
+        normal = jacobian.T @ jacobian
         pose_block = normal[:N_PARAMS, :N_PARAMS] + 1e-9 * np.eye(N_PARAMS)
         cross = normal[:N_PARAMS, N_PARAMS:]
         information_after = normal[N_PARAMS:, N_PARAMS:] - cross.T @ np.linalg.solve(
@@ -395,6 +399,7 @@ def fit_frame(
         information_after = 0.5 * (information_after + information_after.T)
     return FrameFit(
         pose=result.state.pose,
+        hand=hand,
         proportions=result.state.samples.proportions,
         energy=sum(t.energy for t in terms if t.name != REFERENCE),
         start_energy=result.start_energy,

@@ -109,3 +109,40 @@ def observe(
         gradient=np.asarray(gradient, dtype=np.float32),
         depth_m=np.ascontiguousarray(depth_m[low[1] : high[1], low[0] : high[0]]),
     )
+
+
+@dataclass(frozen=True)
+class CropLookup:
+    """What the observation shows where camera-frame points project (:func:`look_up`).
+
+    Attributes
+    ----------
+    row, col : (P,) int64
+        Crop pixel of every point (clipped to the crop).
+    inside : (P,) bool
+        Whether the point projects into the crop at all.
+    outside_px : (P,) float32
+        Distance to the observed hand mask, pixels (``inf`` beyond the crop).
+    seen_m : (P,) float32
+        Observed depth at the pixel (0: none).
+    """
+
+    row: NDArray[np.int64]
+    col: NDArray[np.int64]
+    inside: NDArray[np.bool_]
+    outside_px: NDArray[np.float32]
+    seen_m: NDArray[np.float32]
+
+
+def look_up(observation: Observation, points_m: NDArray[np.float64]) -> CropLookup:
+    """Project ``(P, 3)`` camera-frame points into the observation's crop and read the
+    hand mask's distance and the observed depth there."""
+    z = np.maximum(points_m[:, 2], 1e-3)
+    fx, fy, cx, cy = observation.intrinsics.pinhole
+    col = np.rint(fx * points_m[:, 0] / z + cx).astype(np.int64) - observation.origin_uv[0]
+    row = np.rint(fy * points_m[:, 1] / z + cy).astype(np.int64) - observation.origin_uv[1]
+    height, width = observation.outside_px.shape
+    inside = (col >= 0) & (col < width) & (row >= 0) & (row < height)
+    col, row = np.clip(col, 0, width - 1), np.clip(row, 0, height - 1)
+    outside = np.where(inside, observation.outside_px[row, col], np.float32(np.inf))
+    return CropLookup(row, col, inside, outside, observation.depth_m[row, col])

@@ -16,6 +16,8 @@ points apart. Left out:
 
 from __future__ import annotations
 
+from functools import cache
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -90,16 +92,18 @@ def _overlaps(
     return ra + rb - np.linalg.norm(pa - pb, axis=1), pa, pb
 
 
-_PAIRS = _pairs(make_skeleton())
-"""The pairs of the model's skeleton; proportions within their range do not change
-which cones overlap in the open hand."""
+@cache
+def _model_pairs() -> NDArray[np.int64]:
+    """The pairs of the model's skeleton, found on first use; proportions within their
+    range do not change which cones overlap in the open hand."""
+    return _pairs(make_skeleton())
 
 
 def collision_residuals(hand: PosedHand, *, weight: float, tolerance_m: float = 0.002) -> Residuals:
     """Residuals ``weight * (overlap - tolerance_m)`` (per metre) of cones of two
     fingers that overlap by more than ``tolerance_m``."""
     skeleton = hand.samples.skeleton
-    pairs = _PAIRS
+    pairs = _model_pairs()
     capsules = finger_capsules(skeleton)
     R, t = hand.pose.rotation, hand.pose.translation_m
     camera_T_bone = hand.bone_transforms.copy()

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from glovedb.hand_model import N_BONES, N_JOINTS
 from tracker.generative.energy.residuals import Residuals
 from tracker.generative.model import MOVES, N_PARAMS, PosedHand
-from tracker.generative.observation import Observation
+from tracker.generative.observation import Observation, look_up
 
 NAME = "reference"
 
@@ -38,19 +38,12 @@ def hidden_joints(
     flies, from counting as an object."""
     facing = np.flatnonzero(np.einsum("ij,ij->i", hand.normals, hand.points_m) < 0)
     points = hand.points_m[facing]
-    z = np.maximum(points[:, 2], 1e-3)
-    fx, fy, cx, cy = observation.intrinsics.pinhole
-    col = np.rint(fx * points[:, 0] / z + cx).astype(np.int64) - observation.origin_uv[0]
-    row = np.rint(fy * points[:, 1] / z + cy).astype(np.int64) - observation.origin_uv[1]
-    height, width = observation.outside_px.shape
-    inside = (col >= 0) & (col < width) & (row >= 0) & (row < height)
-    col, row = np.clip(col, 0, width - 1), np.clip(row, 0, height - 1)
-    seen = observation.depth_m[row, col]
+    pixels = look_up(observation, points)
     hidden = (
-        inside
-        & (observation.outside_px[row, col] > margin_px)
-        & (seen > 0)
-        & (seen < z - depth_margin_m)
+        pixels.inside
+        & (pixels.outside_px > margin_px)
+        & (pixels.seen_m > 0)
+        & (pixels.seen_m < np.maximum(points[:, 2], 1e-3) - depth_margin_m)
     )
     bone = hand.samples.mesh.dominant_bone[facing]
     per_bone = np.bincount(bone, weights=hidden, minlength=N_BONES)

@@ -21,7 +21,7 @@ import numpy as np
 
 from tracker.generative.energy.residuals import Residuals, project_rows
 from tracker.generative.model import PosedHand
-from tracker.generative.observation import Observation
+from tracker.generative.observation import Observation, look_up
 
 NAME = "silhouette"
 
@@ -67,15 +67,10 @@ def silhouette_residuals(
     chosen = facing[:: max(1, len(facing) // max(max_samples, 1))]
     points = hand.points_m[chosen]
     z = np.maximum(points[:, 2], 1e-3)
-    fx, fy, cx, cy = observation.intrinsics.pinhole
-    u, v = fx * points[:, 0] / z + cx, fy * points[:, 1] / z + cy
-    col = np.rint(u).astype(np.int64) - observation.origin_uv[0]
-    row = np.rint(v).astype(np.int64) - observation.origin_uv[1]
-    height, width = observation.outside_px.shape
-    inside_crop = (col >= 0) & (col < width) & (row >= 0) & (row < height)
-    col, row = np.clip(col, 0, width - 1), np.clip(row, 0, height - 1)
-    seen = observation.depth_m[row, col]
-    distance = np.where(inside_crop, observation.outside_px[row, col], np.inf)
+    fx, fy, _, _ = observation.intrinsics.pinhole
+    pixels = look_up(observation, points)
+    row, col, inside_crop = pixels.row, pixels.col, pixels.inside
+    seen, distance = pixels.seen_m, pixels.outside_px
     hidden = (seen > 0) & (seen < z - depth_margin_m)
     off_mask = (distance > margin_px) & ~hidden
     # Beyond the crop the distance is unknown but large: those samples go through the
