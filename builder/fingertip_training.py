@@ -681,7 +681,7 @@ def _heatmap_config(table: Mapping[str, Any] | None) -> Any:
     except ImportError as error:
         raise ValueError(
             f"[heatmap]: training the heatmap stage needs PyTorch ({error}); "
-            'install it with: pip install -e ".[train]"'
+            "install the train extra: bash scripts/setup.sh --train"
         ) from error
     return heatmap_config_from_dict(table)
 

@@ -100,7 +100,7 @@ def _import_ray() -> ModuleType:
         import ray
     except ImportError:
         raise ValueError(
-            "the ray executor needs ray: install the ray extra: pip install -e '.[ray]'"
+            "the ray executor needs Ray: install the ray extra: bash scripts/setup.sh --ray"
         ) from None
     return ray
 

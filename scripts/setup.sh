@@ -3,15 +3,27 @@
 #   - system libraries: EGL with Mesa's drivers (headless rendering, software on a
 #     machine without a GPU), libGL/libX11 and libusb/libudev (Open3D), libgomp
 #     (scikit-learn), and Python's venv module if the distribution split it off;
-#   - a virtual environment in .venv with the project installed (editable), its test
-#     tools and its training extra (PyTorch 2.13.0 and onnx, which only training the
-#     fingertip heatmap network needs). Where pip finds PyTorch's CPU wheel at hand (a
-#     find-links folder, as on our CI machines) it takes that; elsewhere it fetches
-#     PyPI's build with its CUDA packages (several GB): to avoid that, first run
-#     .venv/bin/pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu
+#   - a virtual environment in .venv with the project installed (editable) and its test
+#     tools: everything that building, tracking, detection and evaluation need.
+# Options add the project's extras:
+#   --train   PyTorch and onnx, to train the fingertip heatmap network (PyTorch's CPU
+#             build on a machine without an NVIDIA GPU; the CUDA build, several GB, with one)
+#   --view    rerun, for glove track --view / --rrd
+#   --ray     Ray, for glove build --ray
 # Running it again is quick: it installs only what is missing or changed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+
+extras=dev
+for option in "$@"; do
+  case "$option" in
+    --train) extras+=",train" ;;
+    --view) extras+=",view" ;;
+    --ray) extras+=",ray" ;;
+    -h | --help) sed -n '2,/^set -euo/p' "$0" | sed '$d; s/^# \{0,1\}//'; exit 0 ;;
+    *) echo "setup: unknown option $option (expected --train, --view or --ray)" >&2; exit 2 ;;
+  esac
+done
 
 system_packages=(libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libx11-6 libusb-1.0-0 libudev1 libgomp1)
 python=${PYTHON:-python3}
@@ -39,14 +51,32 @@ fi
 
 [ -x .venv/bin/python ] || "$python" -m venv .venv
 stamp=.venv/.glove-setup
-wanted=$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -c1-16)
+wanted=$( (cat pyproject.toml scripts/setup.sh; echo "$extras") | sha256sum | cut -c1-16)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$wanted" ]; then
-  echo "setup: installing the project into .venv"
-  .venv/bin/python -m pip install -q --upgrade pip 2>&1 | grep -v "^WARNING: Location" || true
-  .venv/bin/python -c "import torch" 2>/dev/null \
-    || .venv/bin/python -m pip install -q "torch==2.13.0" 2>&1 | grep -v "^WARNING: Location" || true
-  .venv/bin/python -m pip install -q -e ".[dev,train]" 2>&1 | grep -v "^WARNING: Location" || true
-  .venv/bin/python -c "import glovedb, builder, tracker, open3d, pyrender, torch, onnx" \
+  echo "setup: installing the project into .venv (extras: $extras)"
+  pip() { .venv/bin/python -m pip "$@" 2>&1 | grep -v "^WARNING: Location" || true; }
+  pip install -q --upgrade pip
+  if [[ $extras == *train* ]] && ! .venv/bin/python -c "import torch" 2>/dev/null; then
+    if command -v nvidia-smi >/dev/null; then
+      pip install -q "torch==2.13.0"
+    else
+      pip install -q "torch==2.13.0" --index-url https://download.pytorch.org/whl/cpu
+    fi
+  fi
+  # The project wants Open3D's CPU build where it exists: the CUDA build an older
+  # setup installed would share its files, so it goes first.
+  if .venv/bin/python -m pip show -q open3d >/dev/null 2>&1 \
+    && .venv/bin/python -c 'import platform, sys; sys.exit(not (sys.platform == "linux" and platform.machine() == "x86_64"))'; then
+    pip uninstall -q -y open3d
+  fi
+  # --no-compile: modules are compiled when first imported, so the many that nothing
+  # imports (Open3D's notebook widgets, say) take no room.
+  pip install -q --no-compile -e ".[$extras]"
+  modules="glovedb, builder, tracker, open3d, pyrender, zmq, mcap"
+  [[ $extras != *train* ]] || modules+=", torch, onnx"
+  [[ $extras != *view* ]] || modules+=", rerun"
+  [[ $extras != *ray* ]] || modules+=", ray"
+  .venv/bin/python -c "import $modules" \
     || { echo "setup: the installed project does not import" >&2; exit 1; }
   echo "$wanted" > "$stamp"
 fi

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from builder.fingertip_data import FingertipDataConfig
-from builder.fingertip_heatmap import (
+from tracker.fingertips.heatmap import GRID, HeatmapNetwork, crop_cell_pixels
+
+torch = pytest.importorskip(
+    "torch", reason="training the heatmap network needs the train extra (scripts/setup.sh --train)"
+)
+from builder.fingertip_heatmap import (  # noqa: E402
     HeatNet,
     augment,
     crop_units,
@@ -16,7 +20,6 @@ from builder.fingertip_heatmap import (
     heatmap_config_from_dict,
     label_heat_peaks,
 )
-from tracker.fingertips.heatmap import GRID, HeatmapNetwork, crop_cell_pixels
 
 
 def test_targets_peak_at_the_tip_cell_and_ignore_hidden_tips() -> None:

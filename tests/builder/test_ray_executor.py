@@ -8,7 +8,7 @@ from helpers import SMALL_DATABASE
 from builder.build import build_database
 from builder.config import config_from_dict
 
-ray = pytest.importorskip("ray")
+ray = pytest.importorskip("ray", reason="Ray builds need the ray extra (scripts/setup.sh --ray)")
 
 pytestmark = [pytest.mark.gl, pytest.mark.slow]
 
