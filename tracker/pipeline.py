@@ -228,10 +228,15 @@ class TrackingResult:
     timing_ms: dict[str, float] = field(default_factory=dict)
     fingertip_detections: tuple[Detection, ...] | None = None
     keypoint_visibility: tuple[str, ...] = ()
+    timestamp_s: float | None = None
 
     def as_record(self) -> dict[str, Any]:
         """The ``poses.jsonl`` object of this frame."""
-        record: dict[str, Any] = {"frame": self.frame, "hand_found": self.hand_found}
+        record: dict[str, Any] = {
+            "frame": self.frame,
+            "timestamp_s": None if self.timestamp_s is None else round(self.timestamp_s, 6),
+            "hand_found": self.hand_found,
+        }
         if self.hand_found:
             assert self.posture_rad is not None and self.rotation is not None
             assert self.translation_m is not None and self.keypoints_3d_m is not None
@@ -416,7 +421,10 @@ class Tracker(Closing):
         )  # fmt: skip
         lap("fit")
         timing["total"] = (time.perf_counter() - started) * 1000.0
-        return TrackingResult(**result, timing_ms=timing, fingertip_detections=detections)
+        return TrackingResult(
+            **result, timestamp_s=frame.timestamp_s, timing_ms=timing,
+            fingertip_detections=detections,
+        )  # fmt: skip
 
     def reset(self) -> None:
         """Forget the past frames (start of a new sequence); keep the proportions."""
@@ -581,7 +589,9 @@ class Tracker(Closing):
     def _not_found(self, frame: Frame, timing: dict[str, float], started: float) -> TrackingResult:
         self.reset()
         timing["total"] = (time.perf_counter() - started) * 1000.0
-        return TrackingResult(frame=frame.index, hand_found=False, timing_ms=timing)
+        return TrackingResult(
+            frame=frame.index, hand_found=False, timestamp_s=frame.timestamp_s, timing_ms=timing
+        )
 
     def close(self) -> None:
         self.index.close()

@@ -171,7 +171,8 @@ def test_tracker_finds_rendered_hands_and_reports_no_hand_without_glove(small_da
         for frame in (bare, empty_depth, shirt):
             result = tracker.track(frame)
             assert not result.hand_found
-            assert result.as_record() == {"frame": frame.index, "hand_found": False,
+            assert result.as_record() == {"frame": frame.index, "timestamp_s": None,
+                                          "hand_found": False,
                                           "timing_ms": result.as_record()["timing_ms"]}  # fmt: skip
     # Without the lookup's confidence gate, the generative fit's quality test says no;
     # with neither, the shirt is taken for a hand: the two gates are what say no.
