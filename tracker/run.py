@@ -11,13 +11,18 @@ The folder gets
 - ``timing.json``: per-stage median and p95 milliseconds, and the frame rate;
 - ``hand.json``: the hand proportions the tracker ended with (estimated online over
   the first frames unless given), which ``--hand`` takes back.
+
+Each frame's record also goes, the moment it exists, to the run's result sinks
+(:mod:`tracker.outputs`: a live stream, an MCAP recording, the 3D viewer); a run
+with sinks may have no folder at all.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,6 +30,7 @@ from typing import Any
 from glovedb.proportions import save_proportions
 from tracker.bvh import pose_arrays, write_bvh
 from tracker.frames import Frame
+from tracker.outputs import ResultSink
 from tracker.overlay import (
     TimingSummary,
     VideoWriter,
@@ -55,7 +61,10 @@ class RunSummary:
     timing : TimingSummary
         Per-stage statistics.
     outputs : dict of str to str
-        What was written where.
+        What was written where (nothing without an output folder).
+    interrupted : bool
+        Stopped by Ctrl-C (the usual end of a camera run); the outputs are complete
+        for the frames tracked until then.
     """
 
     frames: int
@@ -64,6 +73,7 @@ class RunSummary:
     wall_seconds: float
     timing: TimingSummary
     outputs: dict[str, str]
+    interrupted: bool = False
 
     @property
     def fps(self) -> float:
@@ -78,6 +88,7 @@ class RunSummary:
             "wall_seconds": round(self.wall_seconds, 2),
             "timing_ms": self.timing.as_dict(),
             "outputs": self.outputs,
+            "interrupted": self.interrupted,
         }
 
 
@@ -97,23 +108,29 @@ def _remove_earlier_outputs(folder: Path) -> None:
 def track_source(
     source: Source,
     tracker: Tracker,
-    out: str | Path,
+    out: str | Path | None,
     *,
     overlay: bool = True,
     bvh: bool = True,
+    sinks: Sequence[ResultSink] = (),
     progress: Callable[[Iterator[Frame], int | None], Iterator[Frame]] | None = None,
 ) -> RunSummary:
-    """Track every frame of ``source`` and write the outputs into ``out``.
+    """Track every frame of ``source``, write the outputs into ``out`` and hand each
+    frame's record to ``sinks``.
 
     Parameters
     ----------
     source : Source
         From :func:`tracker.sources.open_source`.
     tracker : Tracker
-    out : str or Path
-        Output folder (created; existing outputs in it are replaced).
+    out : str or Path or None
+        Output folder (created; existing outputs in it are replaced); None writes no
+        files (the sinks are the outputs).
     overlay, bvh : bool
         Whether to write the overlay video and the BVH file.
+    sinks : sequence of ResultSink
+        Each gets every frame and its record as soon as it is tracked; the caller
+        opens and closes them.
     progress : callable, optional
         Wraps the frame iterator (e.g. a tqdm bar); gets the frame count if known.
 
@@ -121,9 +138,7 @@ def track_source(
     -------
     RunSummary
     """
-    folder = Path(out)
-    folder.mkdir(parents=True, exist_ok=True)
-    _remove_earlier_outputs(folder)
+    folder = None if out is None else Path(out)
     started = time.perf_counter()
     fps = source.fps or 30.0
     frames: Iterator[Frame] = iter(source)
@@ -131,17 +146,31 @@ def track_source(
         frames = progress(frames, source.n_frames)
     records: list[dict[str, Any]] = []
     tracking = 0.0
-    outputs = {"poses": str(folder / POSES_FILE)}
-    video = VideoWriter(folder / "overlay.mp4", fps) if overlay else None
-    try:
-        with open(folder / POSES_FILE, "w") as poses:
+    outputs: dict[str, str] = {}
+    video = None
+    with contextlib.ExitStack() as files:
+        poses = None
+        if folder is not None:
+            folder.mkdir(parents=True, exist_ok=True)
+            _remove_earlier_outputs(folder)
+            poses = files.enter_context(open(folder / POSES_FILE, "w"))
+            outputs["poses"] = str(folder / POSES_FILE)
+            if overlay:
+                video = files.enter_context(
+                    contextlib.closing(VideoWriter(folder / "overlay.mp4", fps))
+                )
+        interrupted = False
+        try:
             for frame in frames:
                 clock = time.perf_counter()
                 result = tracker.track(frame)
                 tracking += time.perf_counter() - clock
                 record = result.as_record()
-                poses.write(json.dumps(record) + "\n")
-                poses.flush()
+                if poses is not None:
+                    poses.write(json.dumps(record) + "\n")
+                    poses.flush()
+                for sink in sinks:
+                    sink.write(frame, record)
                 records.append(record)
                 if video is not None:
                     video.write(
@@ -149,11 +178,12 @@ def track_source(
                             frame.color, record, frame.intrinsics, mesh=tracker.mesh, fps=fps
                         )
                     )
-    finally:
-        if video is not None:
-            video.close()
-            if records:
-                outputs["overlay"] = str(video.output_path)
+        except KeyboardInterrupt:
+            interrupted = True  # the outputs below are still written for what was tracked
+    if video is not None and records:
+        outputs["overlay"] = str(video.output_path)
+    if folder is None:
+        return _summary(records, tracking, started, outputs, interrupted)
     if bvh and any(r["hand_found"] for r in records):
         arrays = pose_arrays(records)
         path = write_bvh(
@@ -171,15 +201,25 @@ def track_source(
             },
         )
     )
-    timing = timing_summary(r["timing_ms"] for r in records)
-    summary = RunSummary(
-        frames=len(records),
-        found=sum(bool(r["hand_found"]) for r in records),
-        tracking_seconds=tracking,
-        wall_seconds=time.perf_counter() - started,
-        timing=timing,
-        outputs=outputs,
-    )
+    summary = _summary(records, tracking, started, outputs, interrupted)
     (folder / "timing.json").write_text(json.dumps(summary.as_dict(), indent=1))
     outputs["timing"] = str(folder / "timing.json")
     return summary
+
+
+def _summary(
+    records: list[dict[str, Any]],
+    tracking_s: float,
+    started: float,
+    outputs: dict[str, str],
+    interrupted: bool,
+) -> RunSummary:
+    return RunSummary(
+        frames=len(records),
+        found=sum(bool(r["hand_found"]) for r in records),
+        tracking_seconds=tracking_s,
+        wall_seconds=time.perf_counter() - started,
+        timing=timing_summary(r["timing_ms"] for r in records),
+        outputs=outputs,
+        interrupted=interrupted,
+    )

@@ -17,7 +17,12 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, TextIO
 
-from glove_cli.commands.track import add_source_options, source_options
+from glove_cli.commands.track import (
+    add_source_options,
+    add_stream_options,
+    source_options,
+    summary_file,
+)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -86,10 +91,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     _add_model_options(detect)
     detect.add_argument(
         "--out",
-        required=True,
-        help="output folder, or - to stream the records to standard output (no pictures), "
-        "e.g. into another tracker",
+        help="output folder, or - for the records on standard output (no pictures; the "
+        "same as --stream -); may be left out with --stream",
     )
+    add_stream_options(detect)
     detect.add_argument(
         "--sheet", action="store_true", help="one contact sheet instead of an overlay per frame"
     )
@@ -277,21 +282,45 @@ def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
 
 
 def run_detect(args: argparse.Namespace) -> int:
+    from contextlib import ExitStack
+
     from tracker.fingertips.detector import FingertipDetector
     from tracker.fingertips.sequence import open_depth_source
-    from tracker.overlay import write_rgb
+    from tracker.outputs.stream import open_stream
 
+    if args.out == "-":
+        if args.stream not in (None, "-"):
+            raise ValueError("--out -: standard output is the stream; give --stream - or a folder")
+        args.out, args.stream = None, "-"
+    if args.out is None and args.stream is None:
+        raise ValueError("detect: give --out (a folder, or - for standard output) or --stream")
+    if args.sheet and args.out is None:
+        raise ValueError("--sheet: needs an output folder")
     model, config = _load_model(args)
     detector = FingertipDetector(model, config=config)
     source = open_depth_source(args.input, **source_options(args))
     if args.sheet and source.live:
         raise ValueError(f"--sheet: {source.description} is a camera, whose frames do not end")
-    if args.out == "-":
-        if args.sheet:
-            raise ValueError("--sheet: needs an output folder, not --out -")
-        count, seconds = _write_records(detector, source, sys.stdout, pose_guess=args.pose_guess)
-        print(f"{count} frames, {1000 * seconds / max(count, 1):.1f} ms per frame", file=sys.stderr)
-        return 0
+    with ExitStack() as stack:
+        stream = None
+        if args.stream is not None:
+            stream = stack.enter_context(
+                open_stream(args.stream, topic="glove/fingertips", wait_s=args.stream_wait)
+            )
+        if args.out is None:
+            count, seconds = _write_records(
+                detector, source, None, pose_guess=args.pose_guess, stream=stream
+            )
+            print(f"{count} frames, {1000 * seconds / max(count, 1):.1f} ms per frame",
+                  file=sys.stderr)  # fmt: skip
+            return 0
+        return _detect_into_folder(args, detector, source, stream)
+
+
+def _detect_into_folder(args: argparse.Namespace, detector: Any, source: Any, stream: Any) -> int:
+    """``glove fingertips detect --out DIR``: records, overlays or a contact sheet."""
+    from tracker.overlay import write_rgb
+
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     # An earlier run's outputs are replaced, not mixed with these (a shorter run would
@@ -313,17 +342,18 @@ def run_detect(args: argparse.Namespace) -> int:
         else:
             write_rgb(out / "overlay" / f"{frame.frame:06d}.png", picture)
 
-    with open(out / "fingertips.jsonl", "w") as stream:
+    with open(out / "fingertips.jsonl", "w") as records:
         frames = _progress(source, total=source.n_frames, desc="detect", unit="frame")
         count, seconds = _write_records(
-            detector, frames, stream, pose_guess=args.pose_guess, after=draw
+            detector, frames, records, pose_guess=args.pose_guess, after=draw, stream=stream
         )
     if args.sheet:
         write_rgb(out / "contact_sheet.png", contact_sheet(tiles))
     print(
         f"wrote {out / 'fingertips.jsonl'} ({count} frames, "
         f"{1000 * seconds / max(count, 1):.1f} ms per frame) and "
-        + ("contact_sheet.png" if args.sheet else "overlay/NNNNNN.png")
+        + ("contact_sheet.png" if args.sheet else "overlay/NNNNNN.png"),
+        file=summary_file(args),
     )
     return 0
 
@@ -331,23 +361,29 @@ def run_detect(args: argparse.Namespace) -> int:
 def _write_records(
     detector: Any,
     frames: Iterable[Any],
-    stream: TextIO,
+    out: TextIO | None,
     *,
     pose_guess: bool,
     after: Callable[[Any, dict[str, Any]], None] | None = None,
+    stream: Any = None,
 ) -> tuple[int, float]:
-    """Detect on every frame and write its JSON record to ``stream`` at once (flushed: a
-    camera run ends by Ctrl-C); ``after(frame, record)`` follows each. Returns the number
-    of frames and the seconds spent detecting."""
+    """Detect on every frame, write its JSON record to ``out`` at once (flushed: a
+    camera run ends by Ctrl-C) and publish it on ``stream`` (a
+    :class:`tracker.outputs.stream.RecordStream`); ``after(frame, record)`` follows each.
+    Returns the number of frames and the seconds spent detecting."""
     count, seconds = 0, 0.0
     for frame in frames:
         started = time.perf_counter()
         record = detector.record(
-            frame.frame, frame.depth_m, frame.intrinsics, pose_guess=pose_guess
-        )
+            frame.frame, frame.depth_m, frame.intrinsics, pose_guess=pose_guess,
+            timestamp_s=frame.timestamp_s,
+        )  # fmt: skip
         seconds += time.perf_counter() - started
-        stream.write(json.dumps(record) + "\n")
-        stream.flush()
+        if out is not None:
+            out.write(json.dumps(record) + "\n")
+            out.flush()
+        if stream is not None:
+            stream.publish(record)
         count += 1
         if after is not None:
             after(frame, record)

@@ -18,17 +18,61 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "track",
         help="track the glove hand in an RGB-D folder, a .bag recording or a camera",
         description="Track the glove hand frame by frame and write poses.jsonl, an "
-        "overlay video, a BVH file and a timing summary into --out.",
+        "overlay video, a BVH file, hand.json and a timing summary into --out; with "
+        "--stream, --mcap, --view or --rrd, also (or only) send each frame's record there "
+        "the moment it is tracked.",
     )
     parser.add_argument("input", help="RGB-D folder, RealSense .bag file, 'realsense' or 'kinect'")
     parser.add_argument("--db", required=True, help="posture database (.h5)")
-    parser.add_argument("--out", required=True, help="output folder")
+    parser.add_argument(
+        "--out", help="output folder (may be left out when --stream, --mcap, --view or --rrd)"
+    )
     add_source_options(parser)
     add_tracker_options(parser)
     parser.add_argument("--no-overlay", action="store_true", help="do not write the overlay video")
     parser.add_argument("--no-bvh", action="store_true", help="do not write the BVH file")
+    add_stream_options(parser)
+    parser.add_argument(
+        "--mcap",
+        metavar="FILE",
+        help="record each frame's result into an MCAP file (Foxglove, ROS 2 tools)",
+    )
+    parser.add_argument(
+        "--view",
+        action="store_true",
+        help="show color, labeled point cloud, fitted hand and keypoints live in the rerun "
+        "viewer (needs the view extra: scripts/setup.sh --view)",
+    )
+    parser.add_argument(
+        "--rrd", metavar="FILE", help="the same, saved to a rerun .rrd file (view extra)"
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(run=run)
+
+
+def add_stream_options(parser: argparse.ArgumentParser) -> None:
+    """``--stream`` and ``--stream-wait``; shared by ``track`` and ``fingertips detect``."""
+    parser.add_argument(
+        "--stream",
+        metavar="URL",
+        help="publish each frame's record live: tcp://HOST:PORT (ZeroMQ PUB, two-part "
+        "messages [topic, JSON]) or - (JSON lines on standard output); a slow reader "
+        "misses messages, it never slows tracking",
+    )
+    parser.add_argument(
+        "--stream-wait",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="ZeroMQ: wait up to this long for a first subscriber before the first frame "
+        "(default 0)",
+    )
+
+
+def summary_file(args: argparse.Namespace) -> Any:
+    """Where a command prints its summary: standard error when standard output carries
+    the ``--stream -`` records."""
+    return sys.stderr if getattr(args, "stream", None) == "-" else sys.stdout
 
 
 def add_source_options(parser: argparse.ArgumentParser) -> None:
@@ -184,22 +228,39 @@ def progress_bar(description: str) -> Callable[[Iterator, int | None], Iterator]
 
 def run(args: argparse.Namespace) -> int:
     import json
+    from contextlib import ExitStack
 
+    from tracker.outputs import open_sinks
     from tracker.run import track_source
-    from tracker.sources import open_source
+    from tracker.sources import LIVE_CAMERAS, open_source
 
+    if args.out is None and not (args.stream or args.mcap or args.view or args.rrd):
+        raise ValueError("track: give --out, or at least one of --stream, --mcap, --view, --rrd")
+    if args.json and args.stream == "-":
+        raise ValueError("--json: standard output carries the --stream - records")
     source = open_source(args.input, **source_options(args))
-    with make_tracker(args) as tracker:
+    with make_tracker(args) as tracker, ExitStack() as stack:
+        sinks = open_sinks(
+            stack, tracker, stream=args.stream, stream_wait_s=args.stream_wait, mcap=args.mcap,
+            view=args.view, rrd=args.rrd,
+        )  # fmt: skip
         summary = track_source(
             source, tracker, args.out, overlay=not args.no_overlay, bvh=not args.no_bvh,
-            progress=progress_bar("tracking"),
+            sinks=sinks, progress=progress_bar("tracking"),
         )  # fmt: skip
+    outputs = dict(summary.outputs)
+    for name, value in (("stream", args.stream), ("mcap", args.mcap), ("rrd", args.rrd)):
+        if value is not None:
+            outputs[name] = str(value)
     if args.json:
-        print(json.dumps(summary.as_dict()))
+        print(json.dumps({**summary.as_dict(), "outputs": outputs}))
         return 0
-    print(f"tracked {summary.frames} frames of {source.description}: hand found in "
-          f"{summary.found}, {summary.fps:.1f} frames/s")  # fmt: skip
-    print(summary.timing.table())
-    for name, path in summary.outputs.items():
-        print(f"  {name:8s} {path}")
-    return 0
+    out = summary_file(args)
+    stopped = " (stopped by Ctrl-C)" if summary.interrupted else ""
+    print(f"tracked {summary.frames} frames of {source.description}{stopped}: hand found in "
+          f"{summary.found}, {summary.fps:.1f} frames/s", file=out)  # fmt: skip
+    print(summary.timing.table(), file=out)
+    for name, path in outputs.items():
+        print(f"  {name:8s} {path}", file=out)
+    # Ctrl-C is how a camera run ends; a recording cut short says so in its exit code.
+    return 130 if summary.interrupted and source.kind not in LIVE_CAMERAS else 0

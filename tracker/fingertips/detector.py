@@ -122,16 +122,23 @@ class FingertipDetector:
         *,
         pose_guess: bool = False,
         posture_rad: ArrayLike | None = None,
+        timestamp_s: float | None = None,
     ) -> dict[str, Any]:
-        """One ``fingertips.jsonl`` record: ``frame``, ``fingertips`` (and ``pose_guess``).
+        """One ``fingertips.jsonl`` record: ``frame``, ``timestamp_s`` (the frame's capture
+        time in seconds, None when unknown), ``fingertips`` (and ``pose_guess``).
 
         With ``pose_guess``, a hand pose is fitted to the detections
         (:meth:`guess_pose`, with ``posture_rad`` or the named postures) and the
         detections are named by Eq. 11 against the fitted model's fingertips.
         """
         detections = self.detect(depth_m, intrinsics)
+        stamp = None if timestamp_s is None else round(float(timestamp_s), 6)
         if not pose_guess:
-            return {"frame": int(frame), "fingertips": fingertips_output(detections)}
+            return {
+                "frame": int(frame),
+                "timestamp_s": stamp,
+                "fingertips": fingertips_output(detections),
+            }
         guess = self.guess_pose(detections, depth_m, intrinsics, posture_rad=posture_rad)
         if guess is not None:
             detections = name_fingers(
@@ -143,6 +150,7 @@ class FingertipDetector:
             )
         return {
             "frame": int(frame),
+            "timestamp_s": stamp,
             "fingertips": fingertips_output(detections),
             "pose_guess": pose_guess_output(guess),
         }

@@ -152,11 +152,14 @@ class DepthFrame:
         Metres, 0 where missing.
     intrinsics : (4,) float64
         ``(fx, fy, cx, cy)`` in pixels.
+    timestamp_s : float or None
+        Capture time in seconds when the source gives one.
     """
 
     frame: int
     depth_m: NDArray[np.float32]
     intrinsics: NDArray[np.float64]
+    timestamp_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -224,7 +227,8 @@ def open_depth_source(
 
     def from_source() -> Iterator[DepthFrame]:
         for frame in source:
-            yield DepthFrame(frame.index, frame.depth_m, frame.intrinsics.pinhole)
+            pinhole = frame.intrinsics.pinhole
+            yield DepthFrame(frame.index, frame.depth_m, pinhole, frame.timestamp_s)
 
     live = source.kind in LIVE_CAMERAS
     return DepthSource(from_source(), source.description, source.n_frames, live=live)
