@@ -747,7 +747,7 @@ def write_annotated_folder(
     depth_scale: float = 1000.0,
     settings: Mapping[str, Any] | None = None,
 ) -> int:
-    """Write examples as an RGB-D folder (CONVENTIONS.md layout, depth only).
+    """Write examples as an RGB-D folder (docs/conventions.md layout, depth only).
 
     Writes ``intrinsic.json``, ``depth/NNNNNN.png`` (uint16, ``depth_scale`` units per
     metre), ``meta.json`` (with the project version and ``settings``),

@@ -2,13 +2,13 @@
 
 A sequence is a trajectory (:mod:`glovedb.trajectory`) sampled at its frame rate and
 rendered by :class:`~builder.render.GloveRenderer` in front of a background, with the
-noise of a camera added, and written in the RGB-D folder layout of CONVENTIONS.md::
+noise of a camera added, and written in the RGB-D folder layout of docs/conventions.md::
 
     SEQ/intrinsic.json      Open3D intrinsics of the camera
     SEQ/color/000000.png    8-bit RGB
     SEQ/depth/000000.png    uint16, depth_scale units per metre (0 = no measurement)
     SEQ/meta.json           depth_scale, fps, frames, project version, the settings
-    SEQ/groundtruth.jsonl   one object per frame (CONVENTIONS.md)
+    SEQ/groundtruth.jsonl   one object per frame (docs/conventions.md)
 
 This is the synthetic Kinect data of the thesis (ch. 4.3): the ground truth is exact
 and the tracker's estimates can be scored against it (:mod:`tracker.evaluation`).

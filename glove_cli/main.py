@@ -1,6 +1,6 @@
 """Entry point of the ``glove`` command: parses arguments and maps errors to exit codes.
 
-Exit codes (CONVENTIONS.md): 0 success; 2 bad input or usage, with one clear line on
+Exit codes (docs/conventions.md): 0 success; 2 bad input or usage, with one clear line on
 stderr; 1 internal error (one line; set ``GLOVE_DEBUG=1`` for the traceback).
 """
 

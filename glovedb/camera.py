@@ -2,7 +2,7 @@
 
 x right, y down, z forward; pixel (0, 0) is the centre of the top-left pixel, so a
 point projects to ``u = fx * x / z + cx``, ``v = fy * y / z + cy``. On disk the
-intrinsics are Open3D's ``PinholeCameraIntrinsic`` JSON (CONVENTIONS.md), whose
+intrinsics are Open3D's ``PinholeCameraIntrinsic`` JSON (docs/conventions.md), whose
 ``intrinsic_matrix`` is the 3x3 matrix in column-major order.
 """
 

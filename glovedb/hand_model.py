@@ -1,7 +1,7 @@
 """Kinematic model of the right hand: skeleton, joint limits, forward kinematics.
 
 The hand has 26 degrees of freedom: a global rigid pose (6) and the 20 posture angles
-of CONVENTIONS.md. The skeleton is 16 rigid bones: the palm (bone 0) and three
+of docs/conventions.md. The skeleton is 16 rigid bones: the palm (bone 0) and three
 segments per finger (thumb: metacarpal, proximal, distal; other fingers: proximal,
 middle, distal). Bone ``1 + 3 * finger + segment`` is segment ``segment`` of finger
 ``finger`` in the order of :data:`FINGERS`.
@@ -77,7 +77,7 @@ BONE_PARENTS: tuple[int, ...] = (-1,) + tuple(
     for segment in range(3)
 )
 
-# (lower, upper) active range of every posture angle, degrees, CONVENTIONS.md order.
+# (lower, upper) active range of every posture angle, degrees, docs/conventions.md order.
 JOINT_LIMITS_DEG: tuple[tuple[float, float], ...] = (
     (-10.0, 70.0), (-25.0, 55.0), (-15.0, 70.0), (-25.0, 85.0),   # thumb
     (-20.0, 25.0), (-25.0, 95.0), (0.0, 110.0), (-10.0, 85.0),    # index
@@ -228,7 +228,7 @@ class Kinematics:
     Attributes
     ----------
     keypoints_m : (N, 21, 3) float64
-        MediaPipe-order keypoints (CONVENTIONS.md).
+        MediaPipe-order keypoints (docs/conventions.md).
     bone_transforms : (N, 16, 4, 4) float64
         ``hand_T_bone`` for every bone.
     """
@@ -243,7 +243,7 @@ def forward_kinematics(posture_rad: ArrayLike, skeleton: Skeleton | None = None)
     Parameters
     ----------
     posture_rad : (20,) or (N, 20) float
-        Joint angles in CONVENTIONS.md order, radians. Not clipped to the limits.
+        Joint angles in docs/conventions.md order, radians. Not clipped to the limits.
     skeleton : Skeleton, optional
         Defaults to :func:`make_skeleton` with the default hand length.
 

@@ -1,6 +1,6 @@
 """Posture files: CSV with the 20 joint names as header, or ``.npy`` of shape (N, 20).
 
-Angles are radians in both formats (CONVENTIONS.md order for ``.npy``; any column
+Angles are radians in both formats (docs/conventions.md order for ``.npy``; any column
 order for CSV, matched by name).
 """
 

@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 from glovedb.hand_model import JOINT_NAMES, N_JOINTS, within_limits
 from glovedb.resources import config_path
 
-# The names CONVENTIONS.md requires; the file may define more.
+# The names docs/conventions.md requires; the file may define more.
 REQUIRED_POSTURES: tuple[str, ...] = (
     "open", "fist", "pinch", "power", "tripod", "lateral", "point", "peace", "ok", "thumbs_up",
 )  # fmt: skip

@@ -1,6 +1,6 @@
 """Hand trajectories: keyframes of posture and global pose, interpolated over time.
 
-File format (CONVENTIONS.md)::
+File format (docs/conventions.md)::
 
     {"fps": 30, "keyframes": [{"time_s": 0.0, "posture": "open" | [20 floats],
       "rotation_quat_wxyz": [4], "translation_m": [3]}, ...]}

@@ -67,7 +67,7 @@ BACK_TO_CAMERA = np.diag([1.0, -1.0, -1.0])
 Keyframe = tuple[float, str, float, float, float, float, tuple[float, float, float]]
 
 # Postures no grasp database holds and configs/hand/postures.toml does not name, in
-# degrees by joint (CONVENTIONS.md names, within the joint limits; joints not listed
+# degrees by joint (docs/conventions.md names, within the joint limits; joints not listed
 # are 0, the straight open hand).
 FREE_POSTURES: dict[str, dict[str, float]] = {
     # One finger curled into the palm, the other four and the thumb straight.
@@ -193,7 +193,7 @@ def posture_json(name: str) -> str | list[float]:
 
 
 def keyframe_json(keyframe: Keyframe) -> dict:
-    """One keyframe in the CONVENTIONS.md trajectory format."""
+    """One keyframe in the docs/conventions.md trajectory format."""
     time_s, posture, forearm, flex, roll, lean, centre = keyframe
     rotation = hand_rotation(forearm, flex, roll, lean)
     middle_of_hand = np.array(HAND_CENTRE) * DEFAULT_HAND_LENGTH_M

@@ -108,7 +108,7 @@ class PoseArrays:
 
 
 def pose_arrays(records: Iterable[Mapping[str, Any]]) -> PoseArrays:
-    """Stack ``poses.jsonl`` records (CONVENTIONS.md) into arrays.
+    """Stack ``poses.jsonl`` records (docs/conventions.md) into arrays.
 
     Parameters
     ----------
@@ -173,7 +173,7 @@ def bvh_motion(
     Parameters
     ----------
     postures_rad : (T, 20) float
-        Joint angles, CONVENTIONS.md order.
+        Joint angles, docs/conventions.md order.
     rotations : (T, 3, 3) float
         ``cam_R_hand``: hand frame to camera frame.
     translations_m : (T, 3) float

@@ -1,6 +1,6 @@
 """Scoring tracking output against synthetic ground truth (thesis ch. 4.3).
 
-The definitions are CONVENTIONS.md's, per frame:
+The definitions are docs/conventions.md's, per frame:
 
 - **posture error**: mean over the 20 joint angles of ``|estimate - truth|``, degrees;
 - **rotation error**: geodesic angle of ``R_est^T R_true``, degrees;
@@ -252,7 +252,7 @@ def read_groundtruth(path: str | Path) -> GroundTruth:
     """Read ``groundtruth.jsonl``; one-line ``ValueError`` naming the line if malformed.
 
     Every line needs ``frame`` (consecutive), ``hand_visible`` and the pose fields of
-    CONVENTIONS.md, also when the hand is not visible.
+    docs/conventions.md, also when the hand is not visible.
     """
     path = Path(path)
     frames: list[int] = []

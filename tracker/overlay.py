@@ -318,7 +318,7 @@ def draw_record(
     image : (H, W, 3) uint8
         The frame's color image.
     record : mapping
-        CONVENTIONS.md tracking output for this frame.
+        docs/conventions.md tracking output for this frame.
     intrinsics : CameraIntrinsics
     mesh : HandMesh, optional
         Draw the model's outline when given (costs a skinning of the mesh).

@@ -208,7 +208,7 @@ def fit_confidence(lookup_error_px: float, icp: IcpResult) -> float:
 
 @dataclass(frozen=True)
 class TrackingResult:
-    """What the tracker says about one frame (CONVENTIONS.md "Tracking output").
+    """What the tracker says about one frame (docs/conventions.md "Tracking output").
 
     Pose fields are ``None`` when ``hand_found`` is false. ``fingertips`` are the
     fitted model's; ``fingertip_detections`` are the depth detections the refinement

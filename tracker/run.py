@@ -2,7 +2,7 @@
 
 The folder gets
 
-- ``poses.jsonl``: one CONVENTIONS.md record per input frame, in order, never
+- ``poses.jsonl``: one docs/conventions.md record per input frame, in order, never
   skipping one, each line flushed as soon as its frame is done (an interrupted run
   keeps every finished frame);
 - ``overlay.mp4`` (or a PNG sequence where the codec is missing): the color frames

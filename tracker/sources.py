@@ -7,7 +7,7 @@ from what it is given:
 ========================  ===============================================================
 spec                      source
 ========================  ===============================================================
-a folder                  :func:`frames_from_folder` (CONVENTIONS.md RGB-D layout)
+a folder                  :func:`frames_from_folder` (docs/conventions.md RGB-D layout)
 a ``.bag`` file           :func:`frames_from_bag` (RealSense recording, via Open3D)
 ``"realsense"``           :func:`frames_from_realsense` (live Intel RealSense camera)
 ``"kinect"``              :func:`frames_from_kinect` (live Azure Kinect camera)
@@ -175,7 +175,7 @@ def scan_folder(folder: str | PathLike[str], *, depth_scale: float | None = None
     ----------
     folder : path
         ``intrinsic.json``, ``color/`` and ``depth/`` with numbered images, optional
-        ``meta.json`` (CONVENTIONS.md).
+        ``meta.json`` (docs/conventions.md).
     depth_scale : float, optional
         Overrides ``meta.json``'s ``depth_scale``.
 

@@ -32,7 +32,7 @@ from scipy.optimize import linear_sum_assignment
 from glovedb._validate import as_array
 
 FINGER_NAMES = ("thumb", "index", "middle", "ring", "little")
-"""Finger order of the five fingertips (CONVENTIONS.md)."""
+"""Finger order of the five fingertips (docs/conventions.md)."""
 
 
 @dataclass(frozen=True)

@@ -549,7 +549,7 @@ def detection_points(detections: Sequence[Detection]) -> NDArray[np.float64]:
 
 
 def fingertips_output(detections: Sequence[Detection]) -> list[dict[str, Any]]:
-    """The ``fingertips`` list of a ``poses.jsonl`` record (CONVENTIONS.md)."""
+    """The ``fingertips`` list of a ``poses.jsonl`` record (docs/conventions.md)."""
     return [
         {
             "finger": d.finger,

@@ -1,6 +1,6 @@
 """Scoring fingertip detections against annotated depth frames.
 
-An annotated folder has the RGB-D layout of CONVENTIONS.md (``intrinsic.json``,
+An annotated folder has the RGB-D layout of docs/conventions.md (``intrinsic.json``,
 ``depth/000000.png``, optional ``meta.json``) plus a JSON-lines file with one object
 per frame, holding ``frame`` and either
 

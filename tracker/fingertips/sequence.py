@@ -1,4 +1,4 @@
-"""Reading the depth frames of an RGB-D folder (CONVENTIONS.md layout), or of a recording.
+"""Reading the depth frames of an RGB-D folder (docs/conventions.md layout), or of a recording.
 
 ``SEQ/intrinsic.json`` (Open3D JSON), ``SEQ/depth/NNNNNN.png`` (uint16 in
 ``depth_scale`` units per metre, 0 = missing) and an optional ``SEQ/meta.json`` with
