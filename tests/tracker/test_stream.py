@@ -9,6 +9,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 import zmq
@@ -158,3 +159,22 @@ def test_glove_track_streams_every_frame_of_a_rendered_sequence(small_database, 
     assert piped.returncode == 0, piped.stderr
     assert [json.loads(line)["frame"] for line in piped.stdout.splitlines()] == list(range(8))
     assert "tracked 8 frames" in piped.stderr
+
+
+def test_the_example_subscriber_prints_what_the_tracker_publishes():
+    url = f"tcp://127.0.0.1:{free_port()}"
+    example = Path(__file__).resolve().parents[2] / "examples" / "subscribe.py"
+    with open_stream(url, wait_s=30.0) as stream:
+        subscriber = subprocess.Popen(
+            [sys.executable, str(example), url, "--count", "2"], stdout=subprocess.PIPE, text=True
+        )
+        stream.publish({"frame": 0, "hand_found": False})
+        stream.publish(
+            {"frame": 1, "hand_found": True, "translation_m": [0.01, -0.02, 0.5],
+             "confidence": 0.9}
+        )  # fmt: skip
+    out, _ = subscriber.communicate(timeout=60)
+    assert out.splitlines() == [
+        "frame 0: no hand",
+        "frame 1: wrist at (0.010, -0.020, 0.500) m, confidence 0.90",
+    ]
