@@ -1,6 +1,7 @@
 """Live output: every record over ZeroMQ in order; a reader that never reads loses
 messages, never blocks the writer or grows its memory; JSON lines on a pipe."""
 
+import importlib.util
 import json
 import os
 import resource
@@ -14,6 +15,7 @@ from pathlib import Path
 import pytest
 import zmq
 
+from tracker.outputs.mcap_file import read_records
 from tracker.outputs.stream import QUEUE_MESSAGES, JsonLinesStream, open_stream
 
 
@@ -137,9 +139,14 @@ def test_glove_track_streams_every_frame_of_a_rendered_sequence(small_database, 
     url = f"tcp://127.0.0.1:{free_port()}"
     received: list = []
     listener = subscribe(url, 8, received)
+    # One run writes the folder, the stream, an MCAP recording and (with the view
+    # extra) a rerun recording: all four carry the same records.
+    viewer = importlib.util.find_spec("rerun") is not None
     tracked = subprocess.run(
         [*glove, "track", str(sequence), "--db", str(small_database), "--out",
-         str(tmp_path / "out"), "--no-overlay", "--stream", url, "--stream-wait", "30"],
+         str(tmp_path / "out"), "--no-overlay", "--stream", url, "--stream-wait", "30",
+         "--mcap", str(tmp_path / "run.mcap"),
+         *(["--rrd", str(tmp_path / "run.rrd")] if viewer else [])],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert tracked.returncode == 0, tracked.stderr
@@ -147,6 +154,12 @@ def test_glove_track_streams_every_frame_of_a_rendered_sequence(small_database, 
     lines = (tmp_path / "out" / "poses.jsonl").read_text().splitlines()
     assert [topic for topic, _ in received] == ["glove/hand"] * 8
     assert [record for _, record in received] == [json.loads(line) for line in lines]
+    assert read_records(tmp_path / "run.mcap") == [json.loads(line) for line in lines]
+    if viewer:
+        from rerun.chunk import RrdReader
+
+        entities = {chunk.entity_path for chunk in RrdReader(tmp_path / "run.rrd").stream()}
+        assert {"/world/points", "/world/hand/mesh", "/world/hand/keypoints"} <= entities
     assert sum(record["hand_found"] for _, record in received) >= 6
     assert [record["timestamp_s"] for _, record in received] == pytest.approx(
         [i / 30 for i in range(8)], abs=1e-6
