@@ -467,6 +467,7 @@ class StageTiming:
     mean_ms: float
     max_ms: float
     frames: int
+    p99_ms: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -485,11 +486,12 @@ class TimingSummary:
     frames: int
 
     def as_dict(self) -> dict[str, dict[str, float]]:
-        """``{stage: {"median", "p95", "mean", "max", "frames"}}``, JSON-ready."""
+        """``{stage: {"median", "p95", "p99", "mean", "max", "frames"}}``, JSON-ready."""
         return {
             name: {
                 "median": t.median_ms,
                 "p95": t.p95_ms,
+                "p99": t.p99_ms,
                 "mean": t.mean_ms,
                 "max": t.max_ms,
                 "frames": t.frames,
@@ -511,7 +513,7 @@ class TimingSummary:
 
 
 def timing_summary(timings: Iterable[Mapping[str, float]]) -> TimingSummary:
-    """Median and 95th percentile per stage of per-frame ``timing_ms`` dicts.
+    """Median, 95th and 99th percentile per stage of per-frame ``timing_ms`` dicts.
 
     Parameters
     ----------
@@ -547,6 +549,7 @@ def timing_summary(timings: Iterable[Mapping[str, float]]) -> TimingSummary:
             float(np.mean(times)),
             float(np.max(times)),
             len(times),
+            float(np.percentile(times, 99)),
         )
         for stage, times in values.items()
     }

@@ -39,7 +39,8 @@ from tracker.overlay import (
     timing_summary,
 )
 from tracker.pipeline import Tracker
-from tracker.sources import Source
+from tracker.prefetch import Prefetch
+from tracker.sources import LIVE_CAMERAS, Source
 
 POSES_FILE = "poses.jsonl"
 HAND_FILE = "hand.json"
@@ -65,6 +66,12 @@ class RunSummary:
     interrupted : bool
         Stopped by Ctrl-C (the usual end of a camera run); the outputs are complete
         for the frames tracked until then.
+    loop_seconds : float
+        The frame loop: reading, tracking and writing each frame (setup and the
+        end-of-run files excluded); ``frames / loop_seconds`` is the end-to-end rate.
+    read_wait_seconds : float
+        Time the loop waited for the next frame to be read and decoded: what reading
+        ahead in a thread (:class:`tracker.prefetch.Prefetch`) did not hide.
     """
 
     frames: int
@@ -74,17 +81,26 @@ class RunSummary:
     timing: TimingSummary
     outputs: dict[str, str]
     interrupted: bool = False
+    loop_seconds: float = 0.0
+    read_wait_seconds: float = 0.0
 
     @property
     def fps(self) -> float:
         """Frames per second of tracking (reading and writing excluded)."""
         return self.frames / self.tracking_seconds if self.tracking_seconds > 0 else 0.0
 
+    @property
+    def end_to_end_fps(self) -> float:
+        """Frames per second of the whole loop: reading, tracking and writing."""
+        return self.frames / self.loop_seconds if self.loop_seconds > 0 else 0.0
+
     def as_dict(self) -> dict[str, Any]:
         return {
             "frames": self.frames,
             "hand_found": self.found,
             "fps": round(self.fps, 2),
+            "end_to_end_fps": round(self.end_to_end_fps, 2),
+            "read_wait_ms_per_frame": round(1000 * self.read_wait_seconds / max(self.frames, 1), 2),
             "wall_seconds": round(self.wall_seconds, 2),
             "timing_ms": self.timing.as_dict(),
             "outputs": self.outputs,
@@ -113,6 +129,7 @@ def track_source(
     overlay: bool = True,
     bvh: bool = True,
     sinks: Sequence[ResultSink] = (),
+    read_ahead: int = 2,
     progress: Callable[[Iterator[Frame], int | None], Iterator[Frame]] | None = None,
 ) -> RunSummary:
     """Track every frame of ``source``, write the outputs into ``out`` and hand each
@@ -131,6 +148,10 @@ def track_source(
     sinks : sequence of ResultSink
         Each gets every frame and its record as soon as it is tracked; the caller
         opens and closes them.
+    read_ahead : int
+        Frames of a folder or recording read and decoded ahead in a thread while one
+        is tracked (0: read in turn). A camera is always read in turn, so that the
+        tracker gets its newest frame, not a queued one.
     progress : callable, optional
         Wraps the frame iterator (e.g. a tqdm bar); gets the frame count if known.
 
@@ -142,13 +163,18 @@ def track_source(
     started = time.perf_counter()
     fps = source.fps or 30.0
     frames: Iterator[Frame] = iter(source)
+    reader = None
+    if read_ahead > 0 and source.kind not in LIVE_CAMERAS:
+        frames = reader = Prefetch(frames, depth=read_ahead)
     if progress is not None:
-        frames = progress(frames, source.n_frames)
+        frames = iter(progress(frames, source.n_frames))
     records: list[dict[str, Any]] = []
     tracking = 0.0
     outputs: dict[str, str] = {}
     video = None
     with contextlib.ExitStack() as files:
+        if reader is not None:
+            files.callback(reader.close)
         poses = None
         if folder is not None:
             folder.mkdir(parents=True, exist_ok=True)
@@ -159,13 +185,22 @@ def track_source(
                 video = files.enter_context(
                     contextlib.closing(VideoWriter(folder / "overlay.mp4", fps))
                 )
-        interrupted = False
+        interrupted, waited = False, 0.0
+        loop_started = time.perf_counter()
         try:
-            for frame in frames:
+            while True:
+                clock = time.perf_counter()
+                frame = next(frames, None)
+                wait = time.perf_counter() - clock
+                waited += wait
+                if frame is None:
+                    break
                 clock = time.perf_counter()
                 result = tracker.track(frame)
                 tracking += time.perf_counter() - clock
                 record = result.as_record()
+                # The time this frame's input kept the loop waiting (not in "total").
+                record["timing_ms"]["read"] = round(1000.0 * wait, 3)
                 if poses is not None:
                     poses.write(json.dumps(record) + "\n")
                     poses.flush()
@@ -180,10 +215,11 @@ def track_source(
                     )
         except KeyboardInterrupt:
             interrupted = True  # the outputs below are still written for what was tracked
+        timing = (time.perf_counter() - loop_started, waited)
     if video is not None and records:
         outputs["overlay"] = str(video.output_path)
     if folder is None:
-        return _summary(records, tracking, started, outputs, interrupted)
+        return _summary(records, tracking, started, outputs, interrupted, timing)
     if bvh and any(r["hand_found"] for r in records):
         arrays = pose_arrays(records)
         path = write_bvh(
@@ -201,7 +237,7 @@ def track_source(
             },
         )
     )
-    summary = _summary(records, tracking, started, outputs, interrupted)
+    summary = _summary(records, tracking, started, outputs, interrupted, timing)
     (folder / "timing.json").write_text(json.dumps(summary.as_dict(), indent=1))
     outputs["timing"] = str(folder / "timing.json")
     return summary
@@ -213,6 +249,7 @@ def _summary(
     started: float,
     outputs: dict[str, str],
     interrupted: bool,
+    loop_and_wait_s: tuple[float, float],
 ) -> RunSummary:
     return RunSummary(
         frames=len(records),
@@ -222,4 +259,6 @@ def _summary(
         timing=timing_summary(r["timing_ms"] for r in records),
         outputs=outputs,
         interrupted=interrupted,
+        loop_seconds=loop_and_wait_s[0],
+        read_wait_seconds=loop_and_wait_s[1],
     )

@@ -1,4 +1,5 @@
-"""``glove bench lookup``: search latency, throughput, memory and accuracy."""
+"""``glove bench lookup``: search latency, throughput, memory and accuracy;
+``glove bench track``: end-to-end tracking speed and per-stage latency."""
 
 from __future__ import annotations
 
@@ -31,6 +32,23 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     lookup.add_argument("--json", action="store_true", help="print one JSON object")
     lookup.set_defaults(run=run_lookup)
+    track = kinds.add_parser(
+        "track",
+        help="end-to-end tracking speed: frames/s with decoding, per-stage latency",
+        description="Track every frame of SOURCE (writing nothing) and report startup, "
+        "time to the first pose, end-to-end frames/s (reading and decoding included), "
+        "tracking frames/s and per-stage median, p95 and p99 latency.",
+    )
+    track.add_argument("source", help="RGB-D folder or RealSense .bag file")
+    track.add_argument("--db", required=True, help="posture database (.h5)")
+    track.add_argument(
+        "--read-ahead",
+        type=int,
+        default=2,
+        help="frames decoded ahead in a thread while one is tracked (default 2; 0: in turn)",
+    )
+    track.add_argument("--json", action="store_true", help="print one JSON object")
+    track.set_defaults(run=run_track)
 
 
 def run_lookup(args: argparse.Namespace) -> int:
@@ -58,4 +76,30 @@ def run_lookup(args: argparse.Namespace) -> int:
     print(f"  recall of top-1    {figures['recall_top1']:.3f} ({figures['queries']} queries)")
     print(f"  mean rank of NN    {figures['mean_rank_true_nn']:.2f}")
     print(f"  resident memory    {figures['rss_mb']:.0f} MB")
+    return 0
+
+
+def run_track(args: argparse.Namespace) -> int:
+    import json
+
+    from tracker.benchmark import benchmark_tracking
+
+    if not 0 <= args.read_ahead <= 64:
+        raise ValueError(f"--read-ahead: expected 0 to 64, got {args.read_ahead}")
+    figures = benchmark_tracking(args.source, args.db, read_ahead=args.read_ahead).as_dict()
+    if args.json:
+        print(json.dumps(figures))
+        return 0
+    machine = figures["machine"]
+    print(f"{args.source} with {args.db}: {figures['frames']} frames, hand found in "
+          f"{figures['hand_found']} ({machine['cpu']}, {machine['cores']} cores)")  # fmt: skip
+    print(f"  startup            {figures['startup_s']:.2f} s, first pose after "
+          f"{figures['first_pose_s']:.2f} s")  # fmt: skip
+    print(f"  end to end         {figures['end_to_end_fps']:.1f} frames/s "
+          f"(read ahead {figures['read_ahead']}, waiting "
+          f"{figures['read_wait_ms_per_frame']:.1f} ms per frame for input)")  # fmt: skip
+    print(f"  tracking alone     {figures['tracking_fps']:.1f} frames/s")
+    print(f"  {'stage':10s} {'median':>8s} {'p95':>8s} {'p99':>8s} {'max':>8s}  ms")
+    for stage, t in figures["stages_ms"].items():
+        print(f"  {stage:10s} {t['median']:8.2f} {t['p95']:8.2f} {t['p99']:8.2f} {t['max']:8.2f}")
     return 0

@@ -172,3 +172,25 @@ def test_source_options_reach_the_source(tmp_path):
     save_intrinsics(CameraIntrinsics(64, 48, 60.0, 60.0, 31.5, 23.5), tmp_path / "k.json")
     kinect.intrinsics = str(tmp_path / "k.json")
     assert source_options(kinect)["intrinsics"].fx == 60.0
+
+
+@pytest.mark.gl
+def test_bench_track_reports_end_to_end_speed_and_stage_latency(small_database, tmp_path):
+    sequence = write_sequence(tmp_path / "seq", 4, depth_mm=700)
+    for read_ahead in ("2", "0"):
+        result = run_glove(
+            "bench", "track", str(sequence), "--db", str(small_database), "--json",
+            "--read-ahead", read_ahead,
+        )  # fmt: skip
+        assert result.returncode == 0, result.stderr
+        figures = json.loads(result.stdout)
+        assert figures["frames"] == 4 and figures["hand_found"] == 0
+        assert figures["read_ahead"] == int(read_ahead)
+        assert 0 < figures["startup_s"] < figures["first_pose_s"]
+        assert figures["end_to_end_fps"] <= figures["tracking_fps"]
+        read = figures["stages_ms"]["read"]
+        assert 0 <= read["median"] <= read["p95"] <= read["p99"] <= read["max"]
+        assert figures["machine"]["cores"] >= 1
+    assert_one_line_error(
+        run_glove("bench", "track", str(sequence), "--db", str(small_database), "--read-ahead",
+                  "-1"), "--read-ahead")  # fmt: skip
