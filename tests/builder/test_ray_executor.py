@@ -64,6 +64,6 @@ def test_executor_and_address_are_checked():
 
 def test_without_ray_the_error_names_the_extra(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "ray", None)  # makes "import ray" fail
-    with pytest.raises(ValueError, match=r"install the ray extra: pip install -e '\.\[ray\]'"):
+    with pytest.raises(ValueError, match=r"install the ray extra: bash scripts/setup.sh --ray"):
         build_database(config_from_dict(SMALL_DATABASE), tmp_path / "db.h5", executor="ray")
     assert not (tmp_path / "db.h5.parts").exists()

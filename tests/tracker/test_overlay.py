@@ -210,7 +210,10 @@ def test_timing_summary():
     stats = summary.as_dict()
     assert stats["lookup"]["median"] == pytest.approx(51.0)
     assert stats["lookup"]["p95"] == pytest.approx(np.percentile([*range(1, 101), 1000], 95))
-    assert stats["icp"] == {"median": 2.0, "p95": 2.0, "mean": 2.0, "max": 2.0, "frames": 100}
+    assert stats["lookup"]["p99"] == pytest.approx(np.percentile([*range(1, 101), 1000], 99))
+    assert stats["icp"] == {
+        "median": 2.0, "p95": 2.0, "p99": 2.0, "mean": 2.0, "max": 2.0, "frames": 100
+    }  # fmt: skip
     lines = summary.table().splitlines()
     assert lines[0].split()[:3] == ["stage", "median", "ms"] and len(lines) == 4
     assert lines[2].split()[:2] == ["lookup", "51.00"]
