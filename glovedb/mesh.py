@@ -14,13 +14,17 @@ Posing is linear blend skinning (LBS)::
 
 from __future__ import annotations
 
+import os
+import zipfile
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from glovedb import _mesh_kernels
 from glovedb._validate import as_array
+from glovedb.cache import cache_folder, source_digest
 from glovedb.hand_model import N_BONES, N_JOINTS, Skeleton, forward_kinematics, make_skeleton
 from glovedb.shape import HandShape, hand_distance, make_hand_shape, polygon_distance
 from glovedb.surface_nets import surface_nets
@@ -91,6 +95,68 @@ def make_hand_mesh(
     vertices = _project_to_surface(vertices, shape, spacing_m)
     return HandMesh(skeleton, vertices, faces, skinning_weights(vertices, shape, skeleton))
 
+
+def cached_hand_mesh(
+    skeleton: Skeleton | None = None,
+    *,
+    spacing_m: float = DEFAULT_SPACING_M,
+    folder: str | os.PathLike[str] | None = None,
+) -> HandMesh:
+    """:func:`make_hand_mesh`, kept in the cache folder after the first time.
+
+    Generating the mesh takes about half a second; loading it, a few milliseconds.
+    The file name is a hash of the skeleton, the spacing and the source of the modules
+    that make the mesh, so any change makes a new mesh. A cache that cannot be read
+    or written is passed over (the mesh is then generated).
+
+    Parameters
+    ----------
+    skeleton : Skeleton, optional
+    spacing_m : float
+    folder : path, optional
+        Default :func:`glovedb.cache.cache_folder` ``/ "mesh"``.
+
+    Returns
+    -------
+    HandMesh
+        Equal, array by array, to ``make_hand_mesh(skeleton, spacing_m=spacing_m)``.
+    """
+    skeleton = skeleton or make_skeleton()
+    digest = source_digest(*_MESH_SOURCES)
+    digest.update(np.float64(spacing_m).tobytes())
+    for array in (skeleton.offsets_m, skeleton.rest_before, skeleton.rest_after):
+        digest.update(np.ascontiguousarray(array, np.float64).tobytes())
+    digest.update(np.ascontiguousarray(skeleton.lengths_m, np.float64).tobytes())
+    digest.update(np.float64(skeleton.hand_length_m).tobytes())
+    path = Path(folder or cache_folder() / "mesh") / f"hand-{digest.hexdigest()[:16]}.npz"
+    try:
+        with np.load(path, allow_pickle=False) as stored:
+            return HandMesh(
+                skeleton,
+                stored["rest_vertices_m"].astype(np.float64),
+                stored["faces"].astype(np.int64),
+                stored["weights"].astype(np.float32),
+            )
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile):
+        pass  # not there yet, or unreadable: make it
+    mesh = make_hand_mesh(skeleton, spacing_m=spacing_m)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.npz")
+        np.savez(
+            partial,
+            rest_vertices_m=mesh.rest_vertices_m,
+            faces=mesh.faces,
+            weights=mesh.weights,
+        )
+        os.replace(partial, path)  # whole or absent, also with two processes at once
+    except OSError:
+        pass  # a read-only home: the next run generates it again
+    return mesh
+
+
+# What decides the mesh's arrays: these modules' source is part of its cache key.
+_MESH_SOURCES = ("mesh", "_mesh_kernels", "shape", "surface_nets", "hand_model", "capsules")
 
 _GRID_SHIFTS = (0.0, 0.31, 0.57, 0.13, 0.79)
 

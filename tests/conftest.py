@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -10,6 +11,19 @@ from helpers import SMALL_DATABASE
 
 from glovedb.hand_model import make_skeleton
 from glovedb.mesh import HandMesh, make_hand_mesh
+
+
+@pytest.fixture(scope="session", autouse=True)
+def cache_folder(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """The tests' own cache folder (meshes), not the user's; subprocesses inherit it."""
+    folder = tmp_path_factory.mktemp("glove_cache")
+    before = os.environ.get("GLOVE_CACHE")
+    os.environ["GLOVE_CACHE"] = str(folder)
+    yield folder
+    if before is None:
+        del os.environ["GLOVE_CACHE"]
+    else:
+        os.environ["GLOVE_CACHE"] = before
 
 
 @pytest.fixture(scope="session")

@@ -52,7 +52,7 @@ from glovedb.hand_model import (
     make_skeleton,
 )
 from glovedb.lookup import DatabaseIndex, default_cascade
-from glovedb.mesh import make_hand_mesh, pose_mesh, vertex_normals
+from glovedb.mesh import cached_hand_mesh, pose_mesh, vertex_normals
 from glovedb.pattern import load_pattern, split_by_label
 from glovedb.posture_prior import load_posture_prior
 from glovedb.proportions import HandProportions, proportioned_mesh
@@ -293,7 +293,7 @@ class Tracker(Closing):
         self.index = DatabaseIndex(database)
         pattern = load_pattern()
         self.color_table = color_table or nominal_table(pattern)
-        self.model_mesh = make_hand_mesh(
+        self.model_mesh = cached_hand_mesh(
             make_skeleton(self.index.hand_length_m), spacing_m=self.settings.mesh_spacing_m
         )
         self.split = split_by_label(self.model_mesh, pattern)

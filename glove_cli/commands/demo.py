@@ -43,11 +43,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def database_cache(cache: str | None) -> Path:
-    """The cache folder: ``--cache``, else ``$XDG_CACHE_HOME/glove``, else ``~/.cache/glove``."""
-    if cache:
-        return Path(cache)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "glove"
+    """The cache folder: ``--cache``, else :func:`glovedb.cache.cache_folder`."""
+    from glovedb.cache import cache_folder
+
+    return Path(cache) if cache else cache_folder()
 
 
 def cached_database(cache: Path, workers: int) -> Path:

@@ -123,3 +123,29 @@ def test_smaller_spacing_gives_a_finer_mesh():
     assert 2000 < len(coarse.rest_vertices_m) < 6000
     with pytest.raises(ValueError, match="spacing_m"):
         make_hand_mesh(spacing_m=0.1)
+
+
+def test_the_cached_mesh_is_the_generated_one_and_survives_a_corrupt_file(tmp_path, monkeypatch):
+    import glovedb.mesh as mesh_module
+    from glovedb.mesh import cached_hand_mesh
+
+    skeleton = make_skeleton(0.18)
+    made = cached_hand_mesh(skeleton, spacing_m=0.004, folder=tmp_path)
+    fresh = make_hand_mesh(skeleton, spacing_m=0.004)
+    (stored,) = tmp_path.glob("hand-*.npz")
+    monkeypatch.setattr(mesh_module, "make_hand_mesh", None)  # a second call must load
+    loaded = cached_hand_mesh(skeleton, spacing_m=0.004, folder=tmp_path)
+    for mesh in (made, loaded):
+        np.testing.assert_array_equal(mesh.rest_vertices_m, fresh.rest_vertices_m)
+        np.testing.assert_array_equal(mesh.faces, fresh.faces)
+        np.testing.assert_array_equal(mesh.weights, fresh.weights)
+        assert mesh.skeleton is skeleton
+    monkeypatch.undo()
+    stored.write_bytes(b"half a file")  # an interrupted copy, a full disk
+    again = cached_hand_mesh(skeleton, spacing_m=0.004, folder=tmp_path)
+    np.testing.assert_array_equal(again.faces, fresh.faces)
+    # Another hand or spacing is another entry, not the same one reused.
+    cached_hand_mesh(make_skeleton(0.2), spacing_m=0.004, folder=tmp_path)
+    cached_hand_mesh(skeleton, spacing_m=0.005, folder=tmp_path)
+    assert len(list(tmp_path.glob("hand-*.npz"))) == 3
+    assert not list(tmp_path.glob("*.partial*"))
