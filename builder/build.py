@@ -20,14 +20,12 @@ nor on the executor, and two builds of one config give the same bytes.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import multiprocessing
 import os
 import shutil
 import time
-import zipfile
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
@@ -41,17 +39,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 import glovedb
-import glovedb.hand_model
-import glovedb.mesh
-import glovedb.shape
-import glovedb.surface_nets
 from builder.config import MAX_POSTURES, DatabaseConfig
 from builder.sampling import farthest_point_selection, synergy_postures
 from glovedb._threads import single_threaded_blas
 from glovedb.camera import CameraIntrinsics
 from glovedb.database import FORMAT_NAME, FORMAT_VERSION, image_dataset_options
 from glovedb.hand_model import forward_kinematics, make_skeleton
-from glovedb.mesh import HandMesh, make_hand_mesh, pose_mesh
+from glovedb.mesh import cached_hand_mesh, pose_mesh
 from glovedb.posture_io import load_postures
 from glovedb.postures import load_named_postures
 from glovedb.rasterize import rasterize_labels
@@ -202,61 +196,6 @@ def stored_settings(config: DatabaseConfig) -> dict[str, Any]:
 # Rendering one posture -------------------------------------------------------------
 
 
-def mesh_cache_folder() -> Path:
-    """``$XDG_CACHE_HOME/glove/meshes``, else ``~/.cache/glove/meshes``."""
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "glove" / "meshes"
-
-
-def cached_hand_mesh(hand_length_m: float, spacing_m: float) -> HandMesh:
-    """:func:`~glovedb.mesh.make_hand_mesh` for a hand length, kept in a file cache.
-
-    Making the mesh takes a worker about a second; every worker of every build needs
-    the same one. The cache file's name is a hash of everything the mesh depends on
-    (the arguments, the project and NumPy versions and the source of the modules that
-    make it), so a changed mesher never meets an old file. Without a writable cache
-    folder the mesh is made every time.
-
-    Parameters
-    ----------
-    hand_length_m : float
-    spacing_m : float
-        Mesher grid spacing, metres.
-
-    Returns
-    -------
-    HandMesh
-        The same arrays, bit for bit, as a freshly made mesh.
-    """
-    skeleton = make_skeleton(hand_length_m)
-    key = hashlib.sha256(
-        json.dumps([glovedb.__version__, np.__version__, hand_length_m, spacing_m]).encode()
-    )
-    for module in (glovedb.hand_model, glovedb.mesh, glovedb.shape, glovedb.surface_nets):
-        key.update(Path(str(module.__file__)).read_bytes())
-    path = mesh_cache_folder() / f"hand_mesh-{key.hexdigest()[:16]}.npz"
-    try:
-        with np.load(path, allow_pickle=False) as cached:
-            return HandMesh(skeleton, cached["rest_vertices_m"], cached["faces"], cached["weights"])
-    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile):
-        pass
-    mesh = make_hand_mesh(skeleton, spacing_m=spacing_m)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        # Unique temporary name, then rename: workers may write the same file at once.
-        temporary = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")
-        np.savez(
-            temporary,
-            rest_vertices_m=mesh.rest_vertices_m,
-            faces=mesh.faces,
-            weights=mesh.weights,
-        )
-        os.replace(temporary, path)
-    except OSError:
-        pass
-    return mesh
-
-
 class PostureRenderer:
     """Renders the tiny images of every view of any posture of a plan.
 
@@ -272,7 +211,9 @@ class PostureRenderer:
         from glovedb.pattern import face_labels, load_pattern
 
         self.plan = plan
-        self.mesh = cached_hand_mesh(plan.config.hand_length_m, plan.config.images.mesh_spacing_m)
+        self.mesh = cached_hand_mesh(
+            make_skeleton(plan.config.hand_length_m), spacing_m=plan.config.images.mesh_spacing_m
+        )
         self._faces = self.mesh.faces.astype(np.int32)
         self._face_labels = face_labels(self.mesh, load_pattern())
 

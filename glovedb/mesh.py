@@ -104,7 +104,8 @@ def cached_hand_mesh(
 ) -> HandMesh:
     """:func:`make_hand_mesh`, kept in the cache folder after the first time.
 
-    Generating the mesh takes about half a second; loading it, a few milliseconds.
+    Generating the mesh takes about half a second; loading it, a few milliseconds
+    (the tracker's start, every build worker).
     The file name is a hash of the skeleton, the spacing and the source of the modules
     that make the mesh, so any change makes a new mesh. A cache that cannot be read
     or written is passed over (the mesh is then generated).
@@ -114,7 +115,7 @@ def cached_hand_mesh(
     skeleton : Skeleton, optional
     spacing_m : float
     folder : path, optional
-        Default :func:`glovedb.cache.cache_folder` ``/ "mesh"``.
+        Default :func:`glovedb.cache.cache_folder` ``/ "meshes"``.
 
     Returns
     -------
@@ -123,12 +124,12 @@ def cached_hand_mesh(
     """
     skeleton = skeleton or make_skeleton()
     digest = source_digest(*_MESH_SOURCES)
-    digest.update(np.float64(spacing_m).tobytes())
+    digest.update(f"{np.__version__} {spacing_m!r}".encode())
     for array in (skeleton.offsets_m, skeleton.rest_before, skeleton.rest_after):
         digest.update(np.ascontiguousarray(array, np.float64).tobytes())
     digest.update(np.ascontiguousarray(skeleton.lengths_m, np.float64).tobytes())
     digest.update(np.float64(skeleton.hand_length_m).tobytes())
-    path = Path(folder or cache_folder() / "mesh") / f"hand-{digest.hexdigest()[:16]}.npz"
+    path = Path(folder or cache_folder() / "meshes") / f"hand-{digest.hexdigest()[:16]}.npz"
     try:
         with np.load(path, allow_pickle=False) as stored:
             return HandMesh(
@@ -137,7 +138,7 @@ def cached_hand_mesh(
                 stored["faces"].astype(np.int64),
                 stored["weights"].astype(np.float32),
             )
-    except (OSError, ValueError, KeyError, zipfile.BadZipFile):
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         pass  # not there yet, or unreadable: make it
     mesh = make_hand_mesh(skeleton, spacing_m=spacing_m)
     try:

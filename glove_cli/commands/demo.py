@@ -37,7 +37,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--frames", type=int, default=120, help="frames of the sequence (30 fps)")
     parser.add_argument("--trajectory", default="tr1", help="trajectory name or file")
     parser.add_argument(
-        "--cache", default=None, help="where the database is kept (default: ~/.cache/glove)"
+        "--cache",
+        default=None,
+        help="where the database is kept (default: $GLOVE_CACHE, else ~/.cache/glove)",
     )
     parser.set_defaults(run=run)
 

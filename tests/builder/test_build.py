@@ -162,31 +162,6 @@ def test_rolling_pixels_equals_rendering_a_rolled_camera():
             assert np.mean(direct[size] != rolled[size][view]) < 0.1
 
 
-def test_the_cached_mesh_equals_a_fresh_one(tmp_path, monkeypatch):
-    from builder.build import cached_hand_mesh, mesh_cache_folder
-    from glovedb.hand_model import make_skeleton
-    from glovedb.mesh import make_hand_mesh
-
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    fresh = make_hand_mesh(make_skeleton(0.18), spacing_m=0.004)
-    first = cached_hand_mesh(0.18, 0.004)
-    assert len(list(mesh_cache_folder().glob("*.npz"))) == 1
-    again = cached_hand_mesh(0.18, 0.004)
-    for mesh in (first, again):
-        np.testing.assert_array_equal(mesh.skeleton.offsets_m, fresh.skeleton.offsets_m)
-        for name in ("rest_vertices_m", "faces", "weights"):
-            expected = getattr(fresh, name)
-            assert getattr(mesh, name).dtype == expected.dtype
-            np.testing.assert_array_equal(getattr(mesh, name), expected)
-    other = cached_hand_mesh(0.18, 0.005)
-    assert len(other.faces) < len(fresh.faces)
-    assert len(list(mesh_cache_folder().glob("*.npz"))) == 2
-    # A damaged file is made again.
-    for path in mesh_cache_folder().glob("*.npz"):
-        path.write_bytes(b"not a zip")
-    np.testing.assert_array_equal(cached_hand_mesh(0.18, 0.004).faces, fresh.faces)
-
-
 def test_tiny_images_do_not_depend_on_distance_or_image_position(renderer):
     """The same view of the hand, near and centred or far and off-centre."""
     posture = named_posture("peace")
