@@ -110,6 +110,12 @@ class TrackerSettings:
         While tracking, the database lookup offers a second start every this many
         frames (and whenever the fit from the previous frame fails the quality test);
         the fit with the lower energy wins. 1 looks up every frame.
+    relook_outside : float
+        The lookup also offers a second start when the warm fit leaves this share
+        more of its model surface outside the observed hand than usual (the running
+        mean over the last frames, which a misregistered camera raises): a sign that
+        fingers went where the warm start cannot follow (curling out of sight behind
+        the palm).
     min_matched : float
         A fit that pairs fewer of the observed glove points with the model surface
         of their color (within ``fit.data_gate_m``) is not trusted: no hand.
@@ -158,6 +164,7 @@ class TrackerSettings:
     mesh_spacing_m: float = 0.003
     fit: FitSettings = field(default_factory=FitSettings)
     reinit_every: int = 10
+    relook_outside: float = 0.03
     min_matched: float = 0.6
     max_outside: float = 0.3
     max_rms_m: float = 0.008
@@ -176,7 +183,7 @@ class TrackerSettings:
             raise ValueError(f"reinit_every: expected >= 1, got {self.reinit_every}")
         if self.calibration_frames < 0:
             raise ValueError(f"calibration_frames: expected >= 0, got {self.calibration_frames}")
-        for name in ("min_matched", "max_outside", "min_fit_confidence"):
+        for name in ("min_matched", "max_outside", "min_fit_confidence", "relook_outside"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name}: expected 0 to 1, got {getattr(self, name)}")
 
@@ -320,6 +327,9 @@ class Tracker(Closing):
         self._previous_posture: NDArray[np.float64] | None = None
         self._previous: PosedHand | None = None
         self._since_lookup = 0
+        # Running mean of the accepted fits' outside share (kept by reset: it belongs
+        # to the camera's registration more than to the sequence).
+        self._outside_level = 0.0
         # One BLAS thread while this tracker lives (see glovedb._threads); set last,
         # so that a tracker that fails to open leaves the process as it was.
         self._blas_limit = single_threaded_blas()
@@ -382,7 +392,9 @@ class Tracker(Closing):
             fits.append(self._fit(observation, warm, tip_targets))
             lap("fit")
         self._since_lookup += 1
-        lookup_due = self._since_lookup >= self.settings.reinit_every
+        lookup_due = self._since_lookup >= self.settings.reinit_every or (
+            bool(fits) and fits[0].outside > self._outside_level + self.settings.relook_outside
+        )
         if not fits or not self._trusted(fits[0]) or lookup_due:
             self._since_lookup = 0
             looked_up = self._lookup_start(frame, region, cloud, lap)
@@ -403,6 +415,7 @@ class Tracker(Closing):
             self._calibrated += 1
         hand = best.hand
         self._previous = hand
+        self._outside_level += 0.1 * (best.outside - self._outside_level)
         posture, rotation, translation = (
             best.pose.posture_rad,
             best.pose.rotation,

@@ -265,3 +265,35 @@ def test_temporal_scores_prefer_the_previous_posture_by_the_given_weight():
         temporal_scores(errors, postures, np.zeros(20), -1.0)
     with pytest.raises(ValueError, match="postures_rad"):
         temporal_scores(errors, postures[:2], np.zeros(20), 1.0)
+
+
+@pytest.mark.gl
+def test_a_warm_fit_that_leaves_the_hand_asks_the_lookup_again(open_pinch_power_database, renderer):
+    from tracker.pipeline import Tracker, TrackerSettings
+
+    rotation = axis_angle_to_matrix(np.array([1.0, 0.0, 0.0]), np.pi)  # palm to the camera
+    translation = np.array([0.0, 0.0, 0.6])
+    frames = [
+        Frame(index, rendering.color, rendering.depth_m, KINECT_V1)
+        for index, rendering in enumerate(
+            renderer.render(named_posture(name), rotation, translation)
+            for name in ("open", "power")  # the hand closes faster than a warm start follows
+        )
+    ]
+    lookups, errors = {}, {}
+    for relook in (0.03, 1.0):  # the default, and off
+        settings = TrackerSettings(smoothing=None, relook_outside=relook)
+        with Tracker(open_pinch_power_database, settings=settings) as tracker:
+            calls = []
+            start = tracker._lookup_start
+            tracker._lookup_start = lambda *a, start=start, calls=calls: (  # type: ignore
+                calls.append(1) or start(*a)
+            )
+            results = [tracker.track(frame) for frame in frames]
+        lookups[relook] = len(calls)
+        assert all(result.hand_found for result in results)
+        errors[relook] = np.degrees(np.abs(results[1].posture_rad - named_posture("power"))).mean()
+    # The first frame always looks up; the second only when the warm fit sticks out.
+    assert lookups == {0.03: 2, 1.0: 1}
+    # From the open hand the warm fit stays 17 deg from the fist; the lookup's start, 5.
+    assert errors[0.03] < 6.0 and errors[1.0] > 2 * errors[0.03]
