@@ -327,7 +327,22 @@ def _worker_render(posture_index: int) -> int:
 
 @dataclass(frozen=True)
 class BuildReport:
-    """What a build did."""
+    """What a build did.
+
+    Attributes
+    ----------
+    path : str
+    entries, postures : int
+        Of the database.
+    rendered_postures : int
+        Rendered by this run (a resumed build renders only the missing ones).
+    seconds : float
+        The whole build: planning, starting the workers, rendering, writing the file.
+    render_seconds : float
+        Rendering alone (workers started, shards written).
+    plan_seconds, write_seconds : float
+        Sampling the postures and views; assembling the database file.
+    """
 
     path: str
     entries: int
@@ -335,12 +350,22 @@ class BuildReport:
     rendered_postures: int
     seconds: float
     render_seconds: float
+    plan_seconds: float = 0.0
+    write_seconds: float = 0.0
+
+    @property
+    def rendered_entries(self) -> int:
+        return self.rendered_postures * (self.entries // max(self.postures, 1))
 
     @property
     def entries_per_second(self) -> float:
-        """Entries rendered per second of rendering (resumed postures not counted)."""
-        rendered = self.rendered_postures * (self.entries // max(self.postures, 1))
-        return rendered / max(self.render_seconds, 1e-9)
+        """Entries rendered per second of the whole build (resumed postures not counted)."""
+        return self.rendered_entries / max(self.seconds, 1e-9)
+
+    @property
+    def render_entries_per_second(self) -> float:
+        """Entries rendered per second of rendering alone."""
+        return self.rendered_entries / max(self.render_seconds, 1e-9)
 
 
 def build_database(
@@ -391,6 +416,7 @@ def build_database(
         raise ValueError("address: a Ray cluster address needs the ray executor")
     started = time.perf_counter()
     plan = make_plan(config)
+    plan_seconds = time.perf_counter() - started
     parts = out.with_name(out.name + ".parts")
     settings = stored_settings(config)
     # Connect before touching the parts folder, so a bad address leaves nothing behind.
@@ -406,6 +432,7 @@ def build_database(
             pass
         render_seconds = time.perf_counter() - render_started
 
+    write_started = time.perf_counter()
     partial = out.with_name(out.name + ".partial")
     _assemble(plan, parts, partial, settings)
     os.replace(partial, out)
@@ -417,6 +444,8 @@ def build_database(
         rendered_postures=len(pending),
         seconds=time.perf_counter() - started,
         render_seconds=render_seconds,
+        plan_seconds=plan_seconds,
+        write_seconds=time.perf_counter() - write_started,
     )
 
 

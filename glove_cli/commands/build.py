@@ -75,6 +75,10 @@ def run(args: argparse.Namespace) -> int:
         "rendered_postures": report.rendered_postures,
         "seconds": round(report.seconds, 2),
         "entries_per_second": round(report.entries_per_second, 1),
+        "render_entries_per_second": round(report.render_entries_per_second, 1),
+        "plan_seconds": round(report.plan_seconds, 2),
+        "render_seconds": round(report.render_seconds, 2),
+        "write_seconds": round(report.write_seconds, 2),
         "workers": args.workers,
         "executor": args.executor,
     }
@@ -83,6 +87,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(
             f"wrote {report.path}: {report.entries:,} entries ({report.postures} postures) in "
-            f"{report.seconds:.1f} s, {report.entries_per_second:,.0f} entries/s on {where}"
+            f"{report.seconds:.1f} s, {report.entries_per_second:,.0f} entries/s on {where} "
+            f"(planning {report.plan_seconds:.1f} s, rendering {report.render_seconds:.1f} s "
+            f"at {report.render_entries_per_second:,.0f} entries/s, writing the file "
+            f"{report.write_seconds:.1f} s)"
         )
     return 0
