@@ -119,6 +119,8 @@ def test_a_reader_that_leaves_does_not_stop_the_writer():
     [
         ("udp://1.2.3.4:5", "expected tcp://HOST:PORT, ipc://PATH or -"),
         ("tcp://256.0.0.1:5555", "cannot listen there"),
+        ("tcp://127.0.0.1:99999", "a port 1-65535"),
+        ("tcp://localhost", "a port 1-65535"),
     ],
 )
 def test_bad_addresses_are_one_line_errors(url, message):

@@ -101,6 +101,10 @@ def open_stream(url: str, *, topic: str = "glove/hand", wait_s: float = 0.0) -> 
             return JsonLinesStream(sys.stdout.fileno())
         except (AttributeError, OSError, ValueError):  # replaced by one without a descriptor
             return JsonLinesStream(sys.stdout)
+    if url.startswith("tcp://"):
+        host, _, port = url[len("tcp://") :].rpartition(":")
+        if not host or not (port == "*" or (port.isdigit() and 0 < int(port) < 65536)):
+            raise ValueError(f"--stream {url}: expected tcp://HOST:PORT with a port 1-65535")
     if url.startswith(("tcp://", "ipc://")):
         return ZmqStream(url, topic, wait_s=wait_s)
     raise ValueError(f"--stream {url}: expected tcp://HOST:PORT, ipc://PATH or - (standard output)")
