@@ -68,6 +68,10 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$wanted" ]; then
   if .venv/bin/python -m pip show -q open3d >/dev/null 2>&1 \
     && .venv/bin/python -c 'import platform, sys; sys.exit(not (sys.platform == "linux" and platform.machine() == "x86_64"))'; then
     pip uninstall -q -y open3d
+    # Its files were the CPU build's too, if both were there: put them back.
+    if .venv/bin/python -m pip show -q open3d-cpu >/dev/null 2>&1; then
+      pip install -q --force-reinstall --no-deps open3d-cpu
+    fi
   fi
   # --no-compile: modules are compiled when first imported, so the many that nothing
   # imports (Open3D's notebook widgets, say) take no room.
