@@ -42,7 +42,10 @@ class LookupBenchmark:
     ``rss_mb`` is the resident memory that opening the database index and searching
     it added to the process (the packed images, the entry tables, the mapped rows
     touched); ``process_rss_mb`` is the whole process, which also holds the libraries
-    and the renderer that made the queries.
+    and the renderer that made the queries. ``first_stage_mb`` and
+    ``first_stage_read_ms`` are the size of the first stage's resident codes and the
+    time one core takes to read them once (the median of 5 plain sums): the memory
+    speed of this machine, against which the first stage's time can be judged.
     """
 
     entries: int
@@ -54,6 +57,8 @@ class LookupBenchmark:
     ranks: NDArray[np.int64]
     rss_mb: float
     process_rss_mb: float
+    first_stage_mb: float = 0.0
+    first_stage_read_ms: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         k = parse_cascade(self.cascade)[-1].k
@@ -73,6 +78,8 @@ class LookupBenchmark:
             "rank_if_missed": k + 1,
             "rss_mb": round(self.rss_mb, 1),
             "process_rss_mb": round(self.process_rss_mb, 1),
+            "first_stage_mb": round(self.first_stage_mb, 3),
+            "first_stage_read_ms": round(self.first_stage_read_ms, 3),
         }
 
 
@@ -202,6 +209,7 @@ def run_lookup_benchmark(
             # The exact nearest error: a returned entry with that error is a hit (ties).
             hits = np.flatnonzero(np.isclose(result.errors, best, rtol=0, atol=1e-5))
             ranks.append(int(hits[0]) + 1 if len(hits) else last.k + 1)
+        first = index.packed(parse_cascade(cascade)[0].size)
         return LookupBenchmark(
             entries=index.entries,
             base_entries=index.base_entries,
@@ -212,7 +220,22 @@ def run_lookup_benchmark(
             ranks=np.array(ranks),
             rss_mb=_resident_mb() - rss_before,
             process_rss_mb=_resident_mb(),
+            first_stage_mb=first.codes.nbytes / 1e6,
+            first_stage_read_ms=memory_read_ms(first.codes),
         )
+
+
+def memory_read_ms(array: NDArray[Any], repeats: int = 5) -> float:
+    """Milliseconds one core takes to read ``array`` once (median of ``repeats`` sums
+    over it as 64-bit words; the sum's arithmetic hides behind the memory reads)."""
+    flat = array.reshape(-1).view(np.uint8)
+    words = flat[: len(flat) // 8 * 8].view(np.uint64)
+    times = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        np.add.reduce(words, dtype=np.uint64)
+        times.append((time.perf_counter() - started) * 1000.0)
+    return float(np.median(times))
 
 
 def _resident_mb() -> float:

@@ -76,6 +76,8 @@ def run_lookup(args: argparse.Namespace) -> int:
     print(f"  recall of top-1    {figures['recall_top1']:.3f} ({figures['queries']} queries)")
     print(f"  mean rank of NN    {figures['mean_rank_true_nn']:.2f}")
     print(f"  resident memory    {figures['rss_mb']:.0f} MB")
+    print(f"  memory reference   one read of the first stage's {figures['first_stage_mb']:.0f} MB: "
+          f"{figures['first_stage_read_ms']:.2f} ms")  # fmt: skip
     return 0
 
 

@@ -50,6 +50,15 @@ def test_bench_lookup_prints_the_figures(small_database):
         assert key in figures
     assert figures["entries"] == 500 and figures["latency_ms"]["median"] > 0
     assert 1.0 <= figures["mean_rank_true_nn"] <= 4.0
+    # The memory reference: the 8x8 stage of 500 entries is 500 x 16 uint16 codes.
+    assert figures["first_stage_mb"] == 500 * 16 * 2 / 1e6
+    assert figures["first_stage_read_ms"] > 0
+
+
+def test_memory_read_reads_the_whole_array():
+    from builder.lookup_bench import memory_read_ms
+
+    assert memory_read_ms(np.ones((1000, 16), np.uint16)) > 0
 
 
 def test_bench_lookup_refuses_no_entries(small_database, capsys):
