@@ -193,3 +193,28 @@ def test_the_example_subscriber_prints_what_the_tracker_publishes():
         "frame 0: no hand",
         "frame 1: wrist at (0.010, -0.020, 0.500) m, confidence 0.90",
     ]
+
+
+def test_fingertip_detections_stream_on_their_own_topic(tmp_path):
+    import cv2
+    import numpy as np
+
+    from glovedb.camera import CameraIntrinsics, save_intrinsics
+
+    folder = tmp_path / "depth_only"
+    (folder / "depth").mkdir(parents=True)
+    save_intrinsics(CameraIntrinsics(64, 48, 60.0, 60.0, 31.5, 23.5), folder / "intrinsic.json")
+    for index in range(3):
+        cv2.imwrite(str(folder / "depth" / f"{index:06d}.png"), np.full((48, 64), 700, np.uint16))
+    url = f"tcp://127.0.0.1:{free_port()}"
+    received: list = []
+    listener = subscribe(url, 3, received)
+    detected = subprocess.run(
+        [sys.executable, "-m", "glove_cli", "fingertips", "detect", str(folder), "--stream", url,
+         "--stream-wait", "30"], capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert detected.returncode == 0, detected.stderr
+    listener.join(30)
+    assert [topic for topic, _ in received] == ["glove/fingertips"] * 3
+    assert [record["frame"] for _, record in received] == [0, 1, 2]
+    assert all(record["fingertips"] == [] for _, record in received)  # a flat wall
