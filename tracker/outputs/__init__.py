@@ -5,7 +5,9 @@
 - :mod:`tracker.outputs.mcap_file`: an MCAP recording (JSON-schema channels) that
   Foxglove and ROS 2 tools open;
 - :mod:`tracker.outputs.rerun_view`: the rerun 3D viewer, live or saved to an
-  ``.rrd`` file (the optional ``view`` extra).
+  ``.rrd`` file (the optional ``view`` extra);
+- :mod:`tracker.outputs.background`: any sink in a thread of its own, dropping
+  frames while it is behind (the live viewer).
 
 Each is a :class:`ResultSink`: :func:`tracker.run.track_source` hands it every
 frame with that frame's ``poses.jsonl`` record, in order, and closes it at the end.
@@ -56,7 +58,10 @@ def open_sinks(
     mcap : path, optional
         An MCAP file to record into.
     view, rrd : bool, path
-        The rerun viewer live, and/or saved to an ``.rrd`` file.
+        The rerun viewer live, and/or saved to an ``.rrd`` file. The live viewer
+        alone logs in a thread of its own (:class:`tracker.outputs.background.
+        BackgroundSink`) and skips frames rather than slow tracking; with a file,
+        every frame is logged on the tracking thread.
 
     Returns
     -------
@@ -72,7 +77,13 @@ def open_sinks(
 
         sinks.append(stack.enter_context(McapRecorder(mcap)))
     if view or rrd is not None:
+        from tracker.outputs.background import BackgroundSink
         from tracker.outputs.rerun_view import RerunLogger
 
-        sinks.append(stack.enter_context(RerunLogger(tracker, spawn=view, path=rrd)))
+        logger = RerunLogger(tracker, spawn=view, path=rrd)
+        # A live view only: in its own thread, dropping frames while the viewer is
+        # behind. A saved recording gets every frame, at the tracker's pace.
+        viewer: BackgroundSink | RerunLogger = BackgroundSink(logger) if rrd is None else logger
+        stack.enter_context(viewer)
+        sinks.append(viewer)
     return sinks
