@@ -95,8 +95,10 @@ def run_track(args: argparse.Namespace) -> int:
     machine = figures["machine"]
     print(f"{args.source} with {args.db}: {figures['frames']} frames, hand found in "
           f"{figures['hand_found']} ({machine['cpu']}, {machine['cores']} cores)")  # fmt: skip
+    since_launch = figures["first_pose_since_launch_s"]
+    launch = "" if since_launch is None else f" ({since_launch:.2f} s after the command started)"
     print(f"  startup            {figures['startup_s']:.2f} s, first pose after "
-          f"{figures['first_pose_s']:.2f} s")  # fmt: skip
+          f"{figures['first_pose_s']:.2f} s{launch}")  # fmt: skip
     print(f"  end to end         {figures['end_to_end_fps']:.1f} frames/s "
           f"(read ahead {figures['read_ahead']}, waiting "
           f"{figures['read_wait_ms_per_frame']:.1f} ms per frame for input)")  # fmt: skip
