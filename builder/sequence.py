@@ -71,7 +71,7 @@ from glovedb.hand_model import (
     forward_kinematics,
     make_skeleton,
 )
-from glovedb.mesh import make_hand_mesh
+from glovedb.mesh import cached_hand_mesh
 from glovedb.pattern import GlovePattern, chroma_uv
 from glovedb.proportions import (
     FACTOR_RANGE,
@@ -941,7 +941,7 @@ def render_sequence(
         when complete (:func:`staged_folder`): a failed run leaves nothing behind.
     renderer : GloveRenderer, optional
         For the settings' camera and hand; one with the settings' hand
-        (``proportioned_mesh(make_hand_mesh(), settings.proportions)``) is made (and
+        (``proportioned_mesh(cached_hand_mesh(), settings.proportions)``) is made (and
         closed) if not given.
     progress : callable, optional
         Wraps the frame iterator, given the number of frames (e.g. a progress bar).
@@ -972,7 +972,7 @@ def render_sequence(
             renderer
             if renderer is not None
             else GloveRenderer(
-                camera, mesh=proportioned_mesh(make_hand_mesh(), settings.proportions)
+                camera, mesh=proportioned_mesh(cached_hand_mesh(), settings.proportions)
             )
         )
         try:

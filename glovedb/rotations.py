@@ -175,6 +175,17 @@ def geodesic_angle(rotation_a: ArrayLike, rotation_b: ArrayLike) -> NDArray[np.f
     return np.arccos(np.clip(cos, -1.0, 1.0))
 
 
+def rotation_vector(rotation: ArrayLike) -> NDArray[np.float64]:
+    """``(..., 3)`` axis times angle (radians, at most pi) of ``(..., 3, 3)`` rotations:
+    the inverse of :func:`axis_angle_to_matrix`."""
+    quat = matrix_to_quaternion(rotation)  # w >= 0: the angle is at most pi
+    xyz = quat[..., 1:]
+    sine = np.linalg.norm(xyz, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(sine, quat[..., :1])
+    # Near the identity angle / sine -> 2.
+    return xyz * np.where(sine < 1e-12, 2.0, angle / np.maximum(sine, 1e-12))
+
+
 def look_at(eye: ArrayLike, target: ArrayLike, up: ArrayLike) -> NDArray[np.float64]:
     """Rotation ``cam_R_world`` of an OpenCV camera at ``eye`` looking at ``target``.
 

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from tracker.pipeline import Tracker, TrackerSettings
-from tracker.run import track_source
+from tracker.run import RunSummary, track_source
 from tracker.sources import open_source
 
 
@@ -26,56 +26,40 @@ class TrackingBenchmark:
 
     Attributes
     ----------
-    frames, found : int
-        Frames tracked; frames with the hand found.
+    run : RunSummary
+        The tracking run: frames, hands found, end-to-end and tracking frames/s, the
+        wait for input, per-stage timing.
     startup_s : float
         Opening the database and preparing the hand model (``Tracker(...)``).
     first_pose_s : float
         From the start (before ``Tracker(...)``) to the first frame's result.
+    read_ahead : int
+        Frames read ahead in a thread (0: read in turn).
     first_pose_since_launch_s : float or None
         From the launch of this process (Python's start and imports included) to the
         first frame's result; None where the system does not tell (not Linux).
-    end_to_end_fps : float
-        Frames per second of the frame loop: reading and decoding, tracking, records.
-    tracking_fps : float
-        Frames per second of :meth:`Tracker.track` alone.
-    read_wait_ms : float
-        Mean milliseconds per frame the loop waited for its input.
-    stages : dict
-        Per stage (``classify`` ... ``total``, ``read``): median, p95, p99 and max
-        milliseconds.
-    read_ahead : int
-        Frames read ahead in a thread (0: read in turn).
     """
 
-    frames: int
-    found: int
+    run: RunSummary
     startup_s: float
     first_pose_s: float
-    end_to_end_fps: float
-    tracking_fps: float
-    read_wait_ms: float
-    stages: dict[str, dict[str, float]]
     read_ahead: int
     first_pose_since_launch_s: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
+        run = self.run
+        since_launch = self.first_pose_since_launch_s
         return {
-            "frames": self.frames,
-            "hand_found": self.found,
+            "frames": run.frames,
+            "hand_found": run.found,
             "startup_s": round(self.startup_s, 3),
             "first_pose_s": round(self.first_pose_s, 3),
-            "first_pose_since_launch_s": None
-            if self.first_pose_since_launch_s is None
-            else round(self.first_pose_since_launch_s, 3),
-            "end_to_end_fps": round(self.end_to_end_fps, 2),
-            "tracking_fps": round(self.tracking_fps, 2),
-            "read_wait_ms_per_frame": round(self.read_wait_ms, 2),
+            "first_pose_since_launch_s": None if since_launch is None else round(since_launch, 3),
+            "end_to_end_fps": round(run.end_to_end_fps, 2),
+            "tracking_fps": round(run.fps, 2),
+            "read_wait_ms_per_frame": round(run.read_wait_ms, 2),
             "read_ahead": self.read_ahead,
-            "stages_ms": {
-                stage: {key: round(value, 3) for key, value in figures.items()}
-                for stage, figures in self.stages.items()
-            },
+            "stages_ms": run.timing.as_dict(),
             "machine": machine(),
         }
 
@@ -116,19 +100,10 @@ def benchmark_tracking(
     with Tracker(database, settings=settings) as tracker:
         startup = time.perf_counter() - started
         summary = track_source(frames, tracker, None, read_ahead=read_ahead, progress=note_first)
-    stages = {
-        name: {"median": t.median_ms, "p95": t.p95_ms, "p99": t.p99_ms, "max": t.max_ms}
-        for name, t in summary.timing.stages.items()
-    }
     return TrackingBenchmark(
-        frames=summary.frames,
-        found=summary.found,
+        run=summary,
         startup_s=startup,
         first_pose_s=first[0] if first else float("nan"),
-        end_to_end_fps=summary.end_to_end_fps,
-        tracking_fps=summary.fps,
-        read_wait_ms=1000.0 * summary.read_wait_seconds / max(summary.frames, 1),
-        stages=stages,
         read_ahead=read_ahead,
         first_pose_since_launch_s=(None if launched is None or not first else launched + first[0]),
     )

@@ -94,13 +94,18 @@ class RunSummary:
         """Frames per second of the whole loop: reading, tracking and writing."""
         return self.frames / self.loop_seconds if self.loop_seconds > 0 else 0.0
 
+    @property
+    def read_wait_ms(self) -> float:
+        """Mean milliseconds per frame the loop waited for its input."""
+        return 1000.0 * self.read_wait_seconds / max(self.frames, 1)
+
     def as_dict(self) -> dict[str, Any]:
         return {
             "frames": self.frames,
             "hand_found": self.found,
             "fps": round(self.fps, 2),
             "end_to_end_fps": round(self.end_to_end_fps, 2),
-            "read_wait_ms_per_frame": round(1000 * self.read_wait_seconds / max(self.frames, 1), 2),
+            "read_wait_ms_per_frame": round(self.read_wait_ms, 2),
             "wall_seconds": round(self.wall_seconds, 2),
             "timing_ms": self.timing.as_dict(),
             "outputs": self.outputs,

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from glovedb.rotations import axis_angle_to_matrix, matrix_to_quaternion
+from glovedb.rotations import axis_angle_to_matrix, rotation_vector
 
 
 def smoothing_factor(cutoff_hz: NDArray[np.float64] | float, dt_s: float) -> NDArray[np.float64]:
@@ -139,14 +139,3 @@ class PoseFilter:
         turn = axis_angle_to_matrix(step / size, size) if size > 0 else np.eye(3)
         self._rotation = turn @ self._rotation
         return posture, self._rotation.copy(), translation
-
-
-def rotation_vector(rotation: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``(3,)`` axis times angle (radians, at most pi) of a rotation matrix."""
-    w, x, y, z = matrix_to_quaternion(rotation)
-    if w < 0:
-        w, x, y, z = -w, -x, -y, -z
-    sine = float(np.linalg.norm([x, y, z]))
-    if sine < 1e-12:
-        return 2.0 * np.array([x, y, z])
-    return 2.0 * np.arctan2(sine, w) * np.array([x, y, z]) / sine

@@ -12,6 +12,7 @@ from glovedb.rotations import (
     look_at,
     matrix_to_quaternion,
     quaternion_to_matrix,
+    rotation_vector,
     slerp,
 )
 from glovedb.views import NAMED_VIEWS, named_view, pose_for_view
@@ -112,3 +113,12 @@ def test_plane_depth_known_values():
     np.testing.assert_allclose(tilted, np.broadcast_to(0.8 / (1 + (v - 11.5) / 100), (24, 32)))
     behind = camera.plane_depth([0.0, 0.0, 1.0], [0.0, 0.0, -0.5])
     assert not behind.any()
+
+
+def test_rotation_vector_inverts_axis_angle():
+    for angle in (1e-9, 0.3, 3.0):
+        axis = np.array([0.2, -0.5, 0.84])
+        axis /= np.linalg.norm(axis)
+        np.testing.assert_allclose(
+            rotation_vector(axis_angle_to_matrix(axis, angle)), axis * angle, atol=1e-9
+        )

@@ -8,7 +8,6 @@ from tracker.smoothing import (
     OneEuroFilter,
     OneEuroSettings,
     PoseFilter,
-    rotation_vector,
     smoothing_factor,
 )
 
@@ -48,12 +47,3 @@ def test_pose_filter_keeps_a_still_rotation_and_follows_a_turning_one():
         np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-9)
     assert np.mean(errors[20:45]) < 0.5 * np.mean(raw[20:45])  # still: the noise is damped
     assert np.mean(errors[60:]) < 2.0  # turning 60 deg/s: less than a frame behind
-
-
-def test_rotation_vector_inverts_axis_angle():
-    for angle in (1e-9, 0.3, 3.0):
-        axis = np.array([0.2, -0.5, 0.84])
-        axis /= np.linalg.norm(axis)
-        np.testing.assert_allclose(
-            rotation_vector(axis_angle_to_matrix(axis, angle)), axis * angle, atol=1e-9
-        )

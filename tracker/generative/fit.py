@@ -354,23 +354,21 @@ def fit_frame(
         terms, quality, hand = frame_energy(state.samples, state.pose, observation, **kwargs)  # type: ignore[arg-type]
         residual = np.concatenate([t.values for t in terms])
         jacobian = np.concatenate([t.jacobian for t in terms])
-        last[:] = [(state, terms, quality, hand, jacobian)]
-        if not estimate_proportions:
-            return residual, jacobian
-        by_proportions = np.concatenate(
-            [
-                t.proportion_jacobian
-                if t.proportion_jacobian is not None
-                else np.zeros((len(t), N_PROPORTIONS))
-                for t in terms
-            ]
-        )
-        by_proportions[:, 1:6] *= extended
-        pull = pull_rows @ (state.samples.proportions.as_vector() - anchor)
-        residual = np.concatenate([residual, pull])
-        jacobian = np.block(
-            [[jacobian, by_proportions], [np.zeros((N_PROPORTIONS, N_PARAMS)), pull_rows]]
-        )
+        if estimate_proportions:
+            by_proportions = np.concatenate(
+                [
+                    t.proportion_jacobian
+                    if t.proportion_jacobian is not None
+                    else np.zeros((len(t), N_PROPORTIONS))
+                    for t in terms
+                ]
+            )
+            by_proportions[:, 1:6] *= extended
+            pull = pull_rows @ (state.samples.proportions.as_vector() - anchor)
+            residual = np.concatenate([residual, pull])
+            jacobian = np.block(
+                [[jacobian, by_proportions], [np.zeros((N_PROPORTIONS, N_PARAMS)), pull_rows]]
+            )
         last[:] = [(state, terms, quality, hand, jacobian)]
         return residual, jacobian
 

@@ -27,6 +27,7 @@ differences, used only while a user's proportions are estimated.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -213,6 +214,8 @@ class PosedHand:
         Samples, camera frame.
     normals : (S, 3) float64
         Their unit normals, camera frame.
+    facing : (S,) bool
+        Samples whose normal faces the camera (computed on first use).
     keypoints_m : (21, 3) float64
         Camera frame.
     bone_transforms : (16, 4, 4) float64
@@ -256,6 +259,11 @@ class PosedHand:
         axes = np.where(DOF_ABOUT_Z[:, None], z_axes, x_after_z) * DOF_SIGN[:, None]
         self._axes_hand = axes
         self._pivots_hand = world[DOF_BONE, :3, 3]
+
+    @cached_property
+    def facing(self) -> NDArray[np.bool_]:
+        """``(S,)`` samples whose outward normal points toward the camera."""
+        return np.einsum("ij,ij->i", self.normals, self.points_m) < 0
 
     def vertex_jacobian(self, sample_ids: ArrayLike) -> NDArray[np.float64]:
         """``(P, 3, 26)`` derivatives of samples (camera frame) by the 26 unknowns."""

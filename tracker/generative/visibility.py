@@ -53,8 +53,7 @@ def keypoint_visibility(
     """
     fx, fy, cx, cy = (float(value) for value in np.asarray(pinhole).reshape(4))
     height, width = depth_m.shape
-    facing = np.einsum("ij,ij->i", hand.normals, hand.points_m) < 0
-    points = hand.points_m[facing & (hand.points_m[:, 2] > 1e-3)]
+    points = hand.points_m[hand.facing & (hand.points_m[:, 2] > 1e-3)]
     cells = (-(-height // cell_px), -(-width // cell_px))
     buffer = np.full(cells, np.inf)
     u = np.rint(fx * points[:, 0] / points[:, 2] + cx).astype(np.int64)

@@ -56,8 +56,7 @@ def data_residuals(
     matched : float
         Share of the observed points that found a partner within the gate.
     """
-    facing = np.einsum("ij,ij->i", hand.normals, hand.points_m) < 0
-    members = np.flatnonzero(facing)
+    members = np.flatnonzero(hand.facing)
     if len(members) == 0 or len(observed_m) == 0:
         return Residuals.empty(NAME, proportions=proportions), 0.0
     tree = class_tree(hand.points_m[members], hand.samples.labels[members])

@@ -36,7 +36,7 @@ def hidden_joints(
     observed hand mask, nearer than the sample in the observed depth), judged at the
     pose of ``hand``. The margin keeps the mask's edge, where colors blur and depth
     flies, from counting as an object."""
-    facing = np.flatnonzero(np.einsum("ij,ij->i", hand.normals, hand.points_m) < 0)
+    facing = np.flatnonzero(hand.facing)
     points = hand.points_m[facing]
     pixels = look_up(observation, points)
     hidden = (

@@ -61,7 +61,7 @@ def silhouette_residuals(
         Share of the examined samples that lie outside the mask and are not hidden:
         model the camera should see but does not.
     """
-    facing = np.flatnonzero(np.einsum("ij,ij->i", hand.normals, hand.points_m) < 0)
+    facing = np.flatnonzero(hand.facing)
     if len(facing) == 0:
         return Residuals.empty(NAME, proportions=proportions), 0.0
     chosen = facing[:: max(1, len(facing) // max(max_samples, 1))]
