@@ -40,6 +40,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fingertips.detect import Detection, detection_points, fingertips_output
+from fingertips.detector import FingertipDetector
 from glovedb._closing import Closing
 from glovedb._threads import single_threaded_blas
 from glovedb._validate import as_array
@@ -60,8 +62,6 @@ from glovedb.rotations import axis_angle_to_matrix
 from glovedb.search import interpolate_pose, parse_cascade
 from glovedb.tiny_images import tiny_images_from_pixels
 from tracker.classify import ColorTable, nominal_table
-from tracker.fingertips.detect import Detection, detection_points, fingertips_output
-from tracker.fingertips.detector import FingertipDetector
 from tracker.frames import Frame
 from tracker.generative.fit import FitSettings, FrameFit, fit_frame
 from tracker.generative.model import HandPose, PosedHand, hand_samples
@@ -143,7 +143,7 @@ class TrackerSettings:
         absolute joint-angle difference between a candidate's posture and the
         previous frame's; 0 turns the re-ranking off.
     fingertip_model : str or None
-        A fingertip model (``.npz``, :mod:`tracker.fingertips.forest`), or
+        A fingertip model (``.npz``, :mod:`fingertips.forest`), or
         ``"default"`` for the shipped one: its detections take part in the
         generative fit. None (the default) detects no fingertips.
     mesh_spacing_m : float
@@ -662,7 +662,7 @@ def tip_targets_of(detections: Sequence[Detection]) -> NDArray[np.float64]:
     Parameters
     ----------
     detections : sequence of Detection
-        With ``finger`` set by :func:`tracker.fingertips.detect.name_fingers` (Eq. 11
+        With ``finger`` set by :func:`fingertips.detect.name_fingers` (Eq. 11
         names each finger at most once) or None.
 
     Returns

@@ -1,9 +1,12 @@
 """``glove fingertips``: train, run and score the depth fingertip detector.
 
 Sub-commands: ``train CONFIG.toml --out MODEL.npz`` (render training data and fit the
-forest), ``synth CONFIG.toml --out DIR`` (write rendered, annotated test frames),
-``detect INPUT --out DIR`` (``fingertips.jsonl`` and overlays) and ``eval INPUT``
-(scores against ``annotations.jsonl`` or ``groundtruth.jsonl``).
+forest, its verifier and the heatmap stage), ``crops CONFIG.toml --out CROPS.npz`` and
+``train-heatmap CONFIG.toml --out NETWORK.onnx`` (the heatmap network's training in
+parts), ``eval-heatmap NETWORK INPUT`` (the network alone), ``synth CONFIG.toml --out
+DIR`` (write rendered, annotated test frames), ``detect INPUT --out DIR``
+(``fingertips.jsonl`` and overlays) and ``eval INPUT`` (scores against
+``annotations.jsonl`` or ``groundtruth.jsonl``). The logic lives in :mod:`fingertips`.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
     train = actions.add_parser(
         "train",
-        help="render training depth and fit a forest",
+        help="render training depth and fit the model (forest, verifier, heatmap stage)",
         description="Render hands with the config's [data] settings, fit the forest of "
         "[training] and save it with the [detector] settings.",
     )
@@ -63,6 +66,73 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     _add_noise_option(train)
     train.set_defaults(run=run_train)
+
+    crops = actions.add_parser(
+        "crops",
+        help="render the heatmap network's training crops",
+        description="Render frames with the config's [data] settings and its [heatmap.data] "
+        "overrides and write their hand crops and fingertips, for train-heatmap --crops. "
+        "One file per seed lets the rendering run in parts.",
+    )
+    crops.add_argument("config", help="TOML config with a [heatmap] table")
+    crops.add_argument("--out", required=True, help="crop file to write (.npz)")
+    crops.add_argument(
+        "--seed",
+        type=int,
+        action="append",
+        help="render this seed (repeatable; default: every seed of [heatmap] crop_seeds)",
+    )
+    crops.add_argument("--images", type=int, help="frames per seed (overrides crops_per_seed)")
+    crops.set_defaults(run=run_crops)
+
+    train_heatmap = actions.add_parser(
+        "train-heatmap",
+        help="train the heatmap network and write it as ONNX",
+        description="Train the whole-hand heatmap network of the config's [heatmap] table "
+        "on crop files (default: render the crops of its crop_seeds first) and write it as "
+        "ONNX, for train --heatmap-network. Needs PyTorch (the train extra).",
+    )
+    train_heatmap.add_argument("config", help="TOML config with a [heatmap] table")
+    train_heatmap.add_argument("--out", required=True, help="network file to write (.onnx)")
+    train_heatmap.add_argument(
+        "--crops",
+        nargs="+",
+        metavar="FILE",
+        help="crop files of 'glove fingertips crops', joined in this order",
+    )
+    train_heatmap.set_defaults(run=run_train_heatmap)
+
+    eval_heatmap = actions.add_parser(
+        "eval-heatmap",
+        help="score a heatmap network alone on annotated frames",
+        description="Detect fingertips with the heatmap network alone (its peaks above a "
+        "threshold, no forest, no verifier) and score them as eval does, per folder and "
+        "threshold.",
+    )
+    eval_heatmap.add_argument(
+        "network", help="network (.onnx) or a model (.npz) that has a heatmap stage"
+    )
+    eval_heatmap.add_argument(
+        "inputs",
+        nargs="+",
+        metavar="INPUT",
+        help="folders with annotations.jsonl or groundtruth.jsonl",
+    )
+    eval_heatmap.add_argument(
+        "--passes",
+        type=int,
+        choices=(1, 2, 4, 8),
+        default=1,
+        help="averaged turned and mirrored passes (default: 1, the crop alone)",
+    )
+    eval_heatmap.add_argument(
+        "--threshold",
+        type=float,
+        action="append",
+        help="smallest heat of a detection (repeatable; default: 0.5, 0.9 and 0.97)",
+    )
+    eval_heatmap.add_argument("--json", action="store_true", help="print one JSON object")
+    eval_heatmap.set_defaults(run=run_eval_heatmap)
 
     synth = actions.add_parser(
         "synth",
@@ -178,14 +248,10 @@ def _data_overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run_train(args: argparse.Namespace) -> int:
-    from builder.fingertip_training import load_recipe, train_from_recipe
-    from tracker.fingertips.forest import load_forest, save_forest
+    from fingertips.forest import load_forest, save_forest
+    from fingertips.training import load_recipe, train_from_recipe
 
-    out = Path(args.out)
-    if out.suffix != ".npz":
-        raise ValueError(f"--out {out}: a model file name ends in .npz")
-    if not out.parent.is_dir():
-        raise ValueError(f"{out.parent}: folder does not exist")
+    out = _output_file(args.out, ".npz", "a model file")
     recipe = load_recipe(args.config, **_data_overrides(args))
     if args.keep_verifier and not args.forest:
         raise ValueError("--keep-verifier: needs --forest MODEL")
@@ -208,36 +274,117 @@ def run_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _output_file(path: str, suffix: str, what: str) -> Path:
+    """``--out`` as a path, refused unless it ends in ``suffix`` and its folder exists."""
+    out = Path(path)
+    if out.suffix != suffix:
+        raise ValueError(f"--out {out}: {what} name ends in {suffix}")
+    if not out.parent.is_dir():
+        raise ValueError(f"{out.parent}: folder does not exist")
+    return out
+
+
 def _heatmap_network(path: str) -> Any:
     """The ONNX bytes of ``--heatmap-network``: an ``.onnx`` file, or a model's network."""
-    import numpy as np
+    from fingertips.forest import read_heatmap_network
 
-    from tracker.fingertips.forest import load_forest
-    from tracker.fingertips.heatmap import HeatmapNetwork
-
-    if not path.endswith(".onnx"):
-        stage = load_forest(path).heatmap
-        if stage is None:
-            raise ValueError(f"--heatmap-network {path}: the model has no heatmap stage")
-        return stage.network_onnx
     try:
-        network = np.frombuffer(Path(path).read_bytes(), dtype=np.uint8)
-    except OSError as error:
-        raise ValueError(f"--heatmap-network {path}: cannot read ({error.strerror})") from error
-    HeatmapNetwork(network, 1)  # refuses what onnxruntime cannot load, before any work
-    return network
+        return read_heatmap_network(path)
+    except ValueError as error:
+        raise ValueError(f"--heatmap-network {error}") from error
+
+
+def _heatmap_recipe(path: str) -> tuple[Any, Any]:
+    """The config's ``[heatmap]`` settings and the data settings of its crops."""
+    from fingertips.training import load_recipe
+
+    recipe = load_recipe(path)
+    if recipe.heatmap is None:
+        raise ValueError(f"{path}: no [heatmap] table")
+    return recipe.heatmap, recipe.heatmap.heatmap_data(recipe.data)
+
+
+def run_crops(args: argparse.Namespace) -> int:
+    from fingertips.heatmap_data import render_crops, save_crops
+
+    out = _output_file(args.out, ".npz", "a crop file")
+    heatmap, data = _heatmap_recipe(args.config)
+    seeds = args.seed or heatmap.crop_seeds
+    per_seed = _positive("--images", args.images) or heatmap.crops_per_seed
+    started = time.perf_counter()
+    crops = render_crops(data, seeds, per_seed, progress=sys.stderr.isatty())
+    save_crops(crops, out, data=data, seeds=seeds)
+    print(
+        f"wrote {out} ({len(crops.images)} crops, {int(crops.whole_hand.sum())} of whole "
+        f"hands) in {time.perf_counter() - started:.0f} s"
+    )
+    return 0
+
+
+def run_train_heatmap(args: argparse.Namespace) -> int:
+    from fingertips._files import write_atomically
+    from fingertips.heatmap_data import load_crops, render_crops, require_torch
+
+    out = _output_file(args.out, ".onnx", "a network file")
+    heatmap, data = _heatmap_recipe(args.config)
+    require_torch()
+    started = time.perf_counter()
+    if args.crops:
+        crops = load_crops(args.crops, data=data)
+    else:
+        progress = sys.stderr.isatty()
+        crops = render_crops(data, heatmap.crop_seeds, heatmap.crops_per_seed, progress=progress)
+    from fingertips.heatmap_training import train_heatmap_network
+
+    network = train_heatmap_network(crops, heatmap, progress=sys.stderr.isatty())
+    write_atomically(out, lambda file: file.write(network.tobytes()))
+    print(
+        f"wrote {out} (trained on {len(crops.images)} crops, {network.size / 1e6:.1f} MB) "
+        f"in {time.perf_counter() - started:.0f} s"
+    )
+    return 0
+
+
+def run_eval_heatmap(args: argparse.Namespace) -> int:
+    from fingertips.evaluation import read_annotated_depth
+    from fingertips.forest import read_heatmap_network
+    from fingertips.heatmap import HeatmapNetwork
+    from fingertips.heatmap_evaluation import DEFAULT_THRESHOLDS, evaluate_network
+
+    network = HeatmapNetwork(read_heatmap_network(args.network), args.passes)
+    thresholds = args.threshold or DEFAULT_THRESHOLDS
+    results: dict[str, Any] = {}
+    for folder in args.inputs:
+        data = read_annotated_depth(folder, annotations=_annotation_file(Path(folder)))
+        scores = evaluate_network(data, network, thresholds=thresholds, progress=_progress)
+        results[folder] = {str(t): m.as_dict() for t, m in scores.items()}
+        for t, m in scores.items():
+            if not args.json:
+                print(
+                    f"{folder} threshold {t}: {m.detections} detections, precision "
+                    f"{m.precision_15mm:.3f}, recall {m.recall_15mm:.3f} ({m.error_3d_mm:.1f} "
+                    f"mm); recall at 10 px {m.recall_10px:.3f} ({m.error_2d_px:.1f} px)"
+                )
+    if args.json:
+        print(json.dumps(_finite_or_none(results)))
+    return 0
+
+
+def _annotation_file(root: Path) -> str:
+    """``annotations.jsonl`` if the folder has one, else ``groundtruth.jsonl``."""
+    return "annotations.jsonl" if (root / "annotations.jsonl").is_file() else "groundtruth.jsonl"
 
 
 def run_synth(args: argparse.Namespace) -> int:
     from dataclasses import asdict, replace
 
-    from builder.fingertip_data import (
+    from builder.sequence import require_empty_folder
+    from fingertips.data import (
         generate_examples,
         load_data_config,
         require_one_camera,
         write_annotated_folder,
     )
-    from builder.sequence import require_empty_folder
 
     config = replace(load_data_config(args.config), **_data_overrides(args))
     require_one_camera(config)  # these two before the progress bar starts
@@ -259,8 +406,8 @@ def _progress(iterable: Iterable[Any], **options: Any) -> Iterable[Any]:
 def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
     from dataclasses import replace
 
-    from tracker.fingertips import load_forest, model_detector_config
-    from tracker.fingertips.forest import DEFAULT_MODEL_PATH
+    from fingertips import load_forest, model_detector_config
+    from fingertips.forest import DEFAULT_MODEL_PATH
 
     model = load_forest(args.model if args.model else DEFAULT_MODEL_PATH)
     config = model_detector_config(model)
@@ -284,8 +431,8 @@ def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
 def run_detect(args: argparse.Namespace) -> int:
     from contextlib import ExitStack
 
-    from tracker.fingertips.detector import FingertipDetector
-    from tracker.fingertips.sequence import open_depth_source
+    from fingertips.depth_input import open_depth_source
+    from fingertips.detector import FingertipDetector
     from tracker.outputs.stream import open_stream
 
     if args.out == "-":
@@ -319,6 +466,7 @@ def run_detect(args: argparse.Namespace) -> int:
 
 def _detect_into_folder(args: argparse.Namespace, detector: Any, source: Any, stream: Any) -> int:
     """``glove fingertips detect --out DIR``: records, overlays or a contact sheet."""
+    from fingertips.pictures import contact_sheet, detection_overlay
     from tracker.overlay import write_rgb
 
     out = Path(args.out)
@@ -336,7 +484,7 @@ def _detect_into_folder(args: argparse.Namespace, detector: Any, source: Any, st
     tiles = []
 
     def draw(frame: Any, record: dict[str, Any]) -> None:
-        picture = overlay(frame.depth_m, record, frame.intrinsics)
+        picture = detection_overlay(frame.depth_m, record, frame.intrinsics)
         if args.sheet:
             tiles.append(picture)
         else:
@@ -391,18 +539,14 @@ def _write_records(
 
 
 def run_eval(args: argparse.Namespace) -> int:
-    from tracker.fingertips.evaluation import (
+    from fingertips.evaluation import (
         fingertip_metrics,
         read_annotated_depth,
         run_detector,
     )
 
     root = Path(args.input)
-    name = args.annotations
-    if name is None:
-        name = (
-            "annotations.jsonl" if (root / "annotations.jsonl").is_file() else "groundtruth.jsonl"
-        )
+    name = args.annotations if args.annotations is not None else _annotation_file(root)
     if args.pose_guess and not (root / "groundtruth.jsonl").is_file():
         raise ValueError(f"{root}: pose guesses need groundtruth.jsonl (a rendered folder)")
     if args.sheet and Path(args.sheet).suffix.lower() not in (".png", ".jpg", ".jpeg"):
@@ -412,7 +556,11 @@ def run_eval(args: argparse.Namespace) -> int:
     detections, ms_per_frame = run_detector(data, model, config=config, progress=_progress)
     metrics = fingertip_metrics(detections, data.tips_m, data.tips_px, ms_per_frame=ms_per_frame)
     if args.sheet:
-        _write_scored_sheet(Path(args.sheet), data, detections)
+        from fingertips.pictures import scored_sheet
+        from tracker.overlay import write_rgb
+
+        Path(args.sheet).parent.mkdir(parents=True, exist_ok=True)
+        write_rgb(Path(args.sheet), scored_sheet(data, detections, max_frames=SHEET_FRAMES))
         print(f"wrote {args.sheet}", file=sys.stderr)
     result = {
         "frames": metrics.frames,
@@ -431,8 +579,8 @@ def run_eval(args: argparse.Namespace) -> int:
     }
     guesses = None
     if args.pose_guess:
-        from tracker.fingertips.detector import FingertipDetector
-        from tracker.fingertips.evaluation import evaluate_pose_guesses
+        from fingertips.detector import FingertipDetector
+        from fingertips.evaluation import evaluate_pose_guesses
 
         detector = FingertipDetector(model, config=config)
         guesses = evaluate_pose_guesses(root, detector, progress=_progress)
@@ -468,115 +616,5 @@ def _finite_or_none(value: Any) -> Any:
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
-def depth_picture(depth_m: Any, *, span_m: float | None = None) -> Any:
-    """``(H, W, 3) uint8``: depth in gray, near bright, black where missing.
-
-    The gray ramp runs from the 1st to the 99th depth percentile, or over ``span_m``
-    metres behind the 1st percentile (detail on a hand in front of a far background).
-    """
-    import numpy as np
-
-    valid = depth_m > 0
-    picture = np.zeros(depth_m.shape + (3,), np.uint8)
-    if valid.any():
-        near, far = np.percentile(depth_m[valid], [1, 99])
-        if span_m is not None:
-            far = near + span_m
-        scaled = 1.0 - np.clip((depth_m - near) / max(far - near, 1e-6), 0.0, 1.0)
-        gray = (40 + 200 * scaled).astype(np.uint8)
-        picture[valid] = gray[valid][:, None]
-    return picture
-
-
-def overlay(depth_m: Any, record: dict[str, Any], intrinsics: Any) -> Any:
-    """``(H, W, 3) uint8`` RGB: depth in gray (near bright), the detections circled and
-    labelled (finger or "?", confidence), and the pose guess's skeleton if there is one.
-    """
-    import numpy as np
-
-    from tracker.fingertips.features import project
-    from tracker.overlay import draw_fingertips, draw_skeleton
-
-    picture = depth_picture(depth_m)
-    guess = record.get("pose_guess")
-    if guess is not None:
-        keypoints = np.asarray(guess["keypoints_3d_m"], dtype=np.float64)
-        picture = draw_skeleton(picture, project(keypoints, np.asarray(intrinsics)), radius_px=2)
-    return draw_fingertips(picture, record["fingertips"], radius_px=5)
-
-
-def contact_sheet(tiles: list[Any], columns: int = 6) -> Any:
-    """Tiles of equal size in rows of ``columns``, padded with black."""
-    import numpy as np
-
-    height, width = tiles[0].shape[:2]
-    rows = math.ceil(len(tiles) / columns)
-    sheet = np.zeros((rows * height, min(columns, len(tiles)) * width, 3), np.uint8)
-    for k, tile in enumerate(tiles):
-        r, c = divmod(k, columns)
-        sheet[r * height : (r + 1) * height, c * width : (c + 1) * width] = tile
-    return sheet
-
-
 SHEET_FRAMES = 60
 """Most frames ``glove fingertips eval --sheet`` draws."""
-SHEET_TILE_WIDTH = 320
-"""Wider frames are scaled down to this width (pixels) on the sheet."""
-
-
-def scored_overlay(depth_m: Any, uv_px: Any, tips_px: Any, *, gate_px: float = 10.0) -> Any:
-    """``(h, w, 3) uint8`` RGB of one scored frame, at most :data:`SHEET_TILE_WIDTH` wide.
-
-    Annotated tips are circles, green when a detection lies within ``gate_px`` (the
-    one-to-one matching of ``recall_at_10px``), red when missed; detections are
-    crosses, cyan when matched, orange when not. The corner reads "found/annotated".
-    """
-    import cv2
-    import numpy as np
-
-    from tracker.fingertips.evaluation import match_frame_2d
-
-    uv = np.asarray(uv_px, dtype=np.float64).reshape(-1, 2)
-    tips = np.asarray(tips_px, dtype=np.float64).reshape(-1, 2)
-    found, matched = match_frame_2d(uv, tips, gate_px=gate_px)
-    picture = depth_picture(depth_m, span_m=0.15)
-    scale = min(1.0, SHEET_TILE_WIDTH / picture.shape[1])
-    if scale < 1.0:
-        size = (round(picture.shape[1] * scale), round(picture.shape[0] * scale))
-        picture = cv2.resize(picture, size, interpolation=cv2.INTER_AREA)
-    radius = max(round(gate_px * scale), 3)
-    annotated = np.all(np.isfinite(tips), axis=1)
-    for tip, hit in zip(tips[annotated] * scale, found[annotated], strict=True):
-        color = (0, 220, 0) if hit else (255, 40, 40)
-        cv2.circle(picture, tuple(round(x) for x in tip.tolist()), radius, color, 1, cv2.LINE_AA)
-    for point, hit in zip(uv * scale, matched, strict=True):
-        color = (0, 230, 255) if hit else (255, 150, 0)
-        centre = tuple(round(x) for x in point.tolist())
-        cv2.drawMarker(picture, centre, color, cv2.MARKER_CROSS, radius + 4, 2)
-    label = f"{int(found.sum())}/{int(annotated.sum())}"
-    cv2.putText(picture, label, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 0), 1)
-    return picture
-
-
-def _write_scored_sheet(path: Path, data: Any, detections: list[Any]) -> None:
-    """Draw :func:`scored_overlay` of up to :data:`SHEET_FRAMES` evenly spread frames."""
-    import cv2
-    import numpy as np
-
-    from tracker.overlay import write_rgb
-
-    n = len(detections)
-    if n == 0:
-        raise ValueError("--sheet: no annotated frames to draw")
-    chosen = np.unique(np.linspace(0, n - 1, min(n, SHEET_FRAMES)).round().astype(int))
-    tiles = []
-    for k in chosen:
-        uv = [(d.u_px, d.v_px) for d in detections[k]]
-        tile = scored_overlay(data.depth_m[k], uv, data.tips_px[k])
-        label = f"frame {int(data.frames[k])}"
-        cv2.putText(
-            tile, label, (4, tile.shape[0] - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 0), 1
-        )
-        tiles.append(tile)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_rgb(path, contact_sheet(tiles))

@@ -238,7 +238,7 @@ def test_fingertip_detections_are_named_and_reported(open_pinch_power_database, 
 
 
 def test_tip_targets_of_leaves_unnamed_fingers_empty():
-    from tracker.fingertips.detect import Detection
+    from fingertips.detect import Detection
     from tracker.pipeline import tip_targets_of
 
     detections = [Detection(1.0, 2.0, 0.1, 0.2, 0.5, 3.0, finger="ring"),

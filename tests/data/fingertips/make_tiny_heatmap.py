@@ -7,7 +7,7 @@ centre, and cold elsewhere (sigmoid(-10) at the centre's depth, about 0 where de
 missing). Turning or mirroring the crop turns or mirrors the map in the same way.
 
 Input ``crops`` ``(N, 1, 64, 64)`` float32, output ``logits`` ``(N, 32, 32)`` float32,
-batch axis dynamic. Used by ``tests/tracker/test_fingertip_heatmap.py``, which needs
+batch axis dynamic. Used by ``tests/fingertips/test_heatmap.py``, which needs
 only onnxruntime. Regenerate (needs torch and onnx, as in the project's venv) with::
 
     .venv/bin/python tests/data/fingertips/make_tiny_heatmap.py

@@ -1,6 +1,6 @@
 """Salient points: model fingertips to fingertip detections (Tzionas et al. 2014, Eq. 12).
 
-Depth fingertip detections (:mod:`tracker.fingertips`), named by Eq. 11 against the
+Depth fingertip detections (:mod:`fingertips`), named by Eq. 11 against the
 model's fingertips, pull those fingertips toward them: three residuals per named
 finger, the 3D distance beyond a dead band (:func:`deadband_weights`), since the
 detections lie a median 8-9 mm from the true tips on the synthetic sequences.

@@ -1,0 +1,89 @@
+"""Compiled tree descents (for :mod:`fingertips.trees` and ``forest``).
+
+Each (sample, tree) pair walks from the root to its leaf. :func:`descend_depth_forest`
+computes the depth difference feature of every split it meets on the spot: exactly
+what the level-by-level NumPy descent (:func:`fingertips.trees.descend` with
+:func:`fingertips.features.paired_feature_values`) does, in float32 with the
+same rounding, but reading only the probes on each pair's path, in one pass.
+:func:`descend_rows` reads the features from a matrix.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+
+@numba.njit(cache=True, nogil=True)
+def descend_depth_forest(
+    padded: NDArray[np.float32],
+    pixels_uv: NDArray[np.int32],
+    reference_m: NDArray[np.float32],
+    offsets_m: NDArray[np.float32],
+    focal_px: tuple[float, float],
+    tree_roots: NDArray[np.int32],
+    node_feature: NDArray[np.int32],
+    node_threshold: NDArray[np.float32],
+    node_left: NDArray[np.int32],
+    node_right: NDArray[np.int32],
+) -> NDArray[np.int32]:
+    """Leaves ``(N, T)`` reached by every pixel in every tree.
+
+    ``padded`` is a :func:`~fingertips.features.probe_image`, ``reference_m``
+    its value at each pixel, ``offsets_m`` ``(F, 2, 2)`` the metric probe offsets.
+    """
+    height, width = padded.shape
+    fx = np.float32(focal_px[0])
+    fy = np.float32(focal_px[1])
+    n_pixels = pixels_uv.shape[0]
+    n_trees = tree_roots.shape[0]
+    leaves = np.empty((n_pixels, n_trees), dtype=np.int32)
+    for n in range(n_pixels):
+        u = pixels_uv[n, 0]
+        v = pixels_uv[n, 1]
+        scale_u = fx / reference_m[n]
+        scale_v = fy / reference_m[n]
+        for t in range(n_trees):
+            node = tree_roots[t]
+            while node_feature[node] >= 0:
+                f = node_feature[node]
+                value = np.float32(0.0)
+                for j in range(2):
+                    du = np.int32(np.rint(offsets_m[f, j, 0] * scale_u))
+                    dv = np.int32(np.rint(offsets_m[f, j, 1] * scale_v))
+                    column = min(max(u + du, -1), width - 2) + 1
+                    row = min(max(v + dv, -1), height - 2) + 1
+                    probe = padded[row, column]
+                    value = value + probe if j == 0 else value - probe
+                if value > node_threshold[node]:
+                    node = node_right[node]
+                else:
+                    node = node_left[node]
+            leaves[n, t] = node
+    return leaves
+
+
+@numba.njit(cache=True, nogil=True)
+def descend_rows(
+    values: NDArray[np.float32],
+    tree_roots: NDArray[np.int32],
+    node_feature: NDArray[np.int32],
+    node_threshold: NDArray[np.float32],
+    node_left: NDArray[np.int32],
+    node_right: NDArray[np.int32],
+) -> NDArray[np.int32]:
+    """Leaves ``(N, T)`` reached by every row of a feature matrix ``(N, F)`` in every tree."""
+    n_rows = values.shape[0]
+    n_trees = tree_roots.shape[0]
+    leaves = np.empty((n_rows, n_trees), dtype=np.int32)
+    for n in range(n_rows):
+        for t in range(n_trees):
+            node = tree_roots[t]
+            while node_feature[node] >= 0:
+                if values[n, node_feature[node]] > node_threshold[node]:
+                    node = node_right[node]
+                else:
+                    node = node_left[node]
+            leaves[n, t] = node
+    return leaves

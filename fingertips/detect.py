@@ -1,0 +1,564 @@
+"""Fingertip detection on one depth frame: forest, Hough voting, heatmap, assignment."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from fingertips.assignment import FINGER_NAMES, assign_detections
+from fingertips.features import (
+    backproject,
+    foreground_pixels,
+    intrinsics_array,
+    mask_depth_range,
+    nearest_band,
+    probe_image,
+    project,
+    stride_for_budget,
+    stride_for_spacing,
+)
+from fingertips.forest import FingertipForest, apply_probe_image, predict_leaves
+from fingertips.heatmap import (
+    HAND_BAND_M,
+    HAND_DEPTH_RANGE_M,
+    HeatmapStage,
+    heatmap_peaks,
+)
+from fingertips.verify import peak_features, verify_peaks
+from fingertips.voting import (
+    DEFAULT_VOTING,
+    Peaks,
+    Votes,
+    VotingConfig,
+    cast_votes,
+    find_peaks,
+)
+from glovedb._validate import as_array
+
+
+@dataclass(frozen=True)
+class Detection:
+    """One detected fingertip.
+
+    Attributes
+    ----------
+    u_px, v_px : float
+        Projection into the image, pixels.
+    x_m, y_m, z_m : float
+        Position in the camera frame (OpenCV axes), metres.
+    confidence : float
+        Sum of the vote weights supporting the detection (see
+        :mod:`fingertips.voting`); for a heatmap detection, the mean heat of
+        its cell (a probability).
+    finger : str or None
+        Finger name from the assignment to a posed model, None if unassigned or if no
+        model was given.
+    tip_probability : float or None
+        The peak verifier's probability that this is a fingertip
+        (:mod:`fingertips.verify`, or the heatmap's verifier); None if the
+        model has no verifier.
+    source : str
+        ``"forest"`` (a vote peak) or ``"heatmap"`` (a peak of the whole-hand heatmap,
+        :mod:`fingertips.heatmap`).
+    """
+
+    u_px: float
+    v_px: float
+    x_m: float
+    y_m: float
+    z_m: float
+    confidence: float
+    finger: str | None = None
+    tip_probability: float | None = None
+    source: str = "forest"
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Settings of detection on one frame.
+
+    Attributes
+    ----------
+    c_thr : float
+        Smallest confidence kept (see :mod:`fingertips.voting`).
+    stride : int
+        Pixel step of the evaluated grid when ``pixel_spacing_m`` is 0.
+    pixel_spacing_m : float
+        When positive, the stride is chosen per frame so that the grid samples the
+        nearest surface about every ``pixel_spacing_m`` metres
+        (:func:`fingertips.features.stride_for_spacing`): the cost per frame
+        then hardly depends on resolution or distance.
+    depth_band_m : float
+        Only depth within this many metres behind the nearest surface is the hand
+        (:func:`fingertips.features.nearest_band`); ``inf`` turns it off.
+    max_pixels : int
+        The stride grows until at most about this many pixels are evaluated (bounds
+        the time per frame when a background surface lies within the band); 0: no
+        bound. Vote weights scale with the stride, so confidences do not change.
+    min_tip_probability : float
+        Peaks whose verifier probability (:mod:`fingertips.verify`) is below
+        this are dropped; 0 keeps every peak above ``c_thr`` (and is the only value
+        allowed for a model without a verifier). With a verifier, ``c_thr`` only
+        selects the candidate peaks.
+    heatmap_min_probability : float
+        Peaks of the model's heatmap stage (:mod:`fingertips.heatmap`) whose
+        verifier probability reaches this, and that lie farther than
+        ``voting.min_separation_m`` from every forest detection and every more
+        probable heat peak, are added to the detections; 0 turns the stage off (and is
+        the only value allowed for a model without one). The stage also needs
+        ``min_tip_probability`` > 0.
+    voting : VotingConfig
+    """
+
+    c_thr: float = 3.0
+    stride: int = 2
+    pixel_spacing_m: float = 0.0
+    depth_band_m: float = math.inf
+    max_pixels: int = 0
+    min_tip_probability: float = 0.0
+    heatmap_min_probability: float = 0.0
+    voting: VotingConfig = DEFAULT_VOTING
+
+    def __post_init__(self) -> None:
+        if not 0 < self.c_thr < math.inf:
+            raise ValueError(f"c_thr: expected a positive, finite threshold, got {self.c_thr}")
+        if self.stride < 1:
+            raise ValueError(f"stride: expected at least 1, got {self.stride}")
+        if self.pixel_spacing_m < 0:
+            raise ValueError(f"pixel_spacing_m: expected >= 0, got {self.pixel_spacing_m}")
+        if self.max_pixels < 0:
+            raise ValueError(f"max_pixels: expected >= 0, got {self.max_pixels}")
+        if not self.depth_band_m > 0:
+            raise ValueError(f"depth_band_m: expected a positive depth, got {self.depth_band_m}")
+        if not 0 <= self.min_tip_probability <= 1:
+            raise ValueError(
+                f"min_tip_probability: expected a probability, got {self.min_tip_probability}"
+            )
+        if not 0 <= self.heatmap_min_probability <= 1:
+            raise ValueError(
+                "heatmap_min_probability: expected a probability, "
+                f"got {self.heatmap_min_probability}"
+            )
+        if self.heatmap_min_probability > 0 and self.min_tip_probability == 0:
+            raise ValueError(
+                "heatmap_min_probability: the heatmap stage needs min_tip_probability > 0"
+            )
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready settings (``depth_band_m`` inf becomes None)."""
+        values = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "voting"}
+        if not math.isfinite(values["depth_band_m"]):
+            values["depth_band_m"] = None
+        values["voting"] = {f.name: getattr(self.voting, f.name) for f in fields(self.voting)}
+        return values
+
+
+DEFAULT_DETECTOR = DetectorConfig()
+"""The default detection settings (immutable)."""
+
+
+def detector_config_from_dict(table: Mapping[str, Any]) -> DetectorConfig:
+    """Build a :class:`DetectorConfig` from a dict as written by :meth:`DetectorConfig.as_dict`.
+
+    Raises
+    ------
+    ValueError
+        For an unknown key.
+    """
+    known = {f.name for f in fields(DetectorConfig)}
+    voting_known = {f.name for f in fields(VotingConfig)}
+    unknown = (set(table) - known) | (set(table.get("voting", {})) - voting_known)
+    if unknown:
+        raise ValueError(f"detector: unknown settings {', '.join(sorted(unknown))}")
+    values = {k: v for k, v in table.items() if k != "voting"}
+    if values.get("depth_band_m", 0.0) is None:
+        values["depth_band_m"] = math.inf
+    return replace(DEFAULT_DETECTOR, voting=VotingConfig(**table.get("voting", {})), **values)
+
+
+def model_detector_config(model: FingertipForest) -> DetectorConfig:
+    """The detection settings recorded with a trained forest (defaults if none)."""
+    return detector_config_from_dict(model.settings.get("detector", {}))
+
+
+def hand_depth(
+    depth_m: ArrayLike, model: FingertipForest, *, depth_band_m: float = math.inf
+) -> NDArray[np.float32]:
+    """Depth restricted to the forest's working range and the band behind the nearest surface.
+
+    Parameters
+    ----------
+    depth_m : (H, W) float
+        Depth in metres, 0 where missing.
+    model : FingertipForest
+    depth_band_m : float
+        See :class:`DetectorConfig`.
+
+    Returns
+    -------
+    (H, W) float32
+        0 outside.
+    """
+    near, far = model.depth_range_m
+    masked = mask_depth_range(depth_m, near_m=near, far_m=far)
+    return nearest_band(masked, band_m=depth_band_m)
+
+
+def fingertip_votes(
+    depth_m: ArrayLike,
+    intrinsics: ArrayLike,
+    model: FingertipForest,
+    *,
+    config: DetectorConfig = DEFAULT_DETECTOR,
+) -> Votes:
+    """The forest's 3D fingertip votes for one depth frame.
+
+    Parameters
+    ----------
+    depth_m : (H, W) float32
+        Depth in metres, 0 where missing.
+    intrinsics : (4,) float
+        ``(fx, fy, cx, cy)`` in pixels.
+    model : FingertipForest
+        Trained forest; its working depth range selects the hand pixels.
+    config : DetectorConfig
+        Pixel grid, hand segmentation and voting settings.
+
+    Returns
+    -------
+    Votes
+    """
+    return _frame_votes(depth_m, intrinsics_array(intrinsics), model, config)[0]
+
+
+def _frame_votes(
+    depth_m: ArrayLike,
+    camera: NDArray[np.float64],
+    model: FingertipForest,
+    config: DetectorConfig,
+) -> tuple[Votes, NDArray[np.float32], NDArray[np.float32]]:
+    """The votes of :func:`fingertip_votes`, the probe image of the hand depth they come
+    from (:func:`~fingertips.features.probe_image`, made once per frame) and
+    that hand depth (:func:`hand_depth`)."""
+    depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
+    masked = hand_depth(depth, model, depth_band_m=config.depth_band_m)
+    stride = config.stride
+    if config.pixel_spacing_m > 0:
+        stride = stride_for_spacing(masked, float(camera[0]), spacing_m=config.pixel_spacing_m)
+    if config.max_pixels > 0:
+        stride = max(stride, stride_for_budget(masked, config.max_pixels))
+    pixels = foreground_pixels(masked, stride=stride)
+    probes = probe_image(masked)
+    prediction = predict_leaves(model, apply_probe_image(model, probes, pixels, camera))
+    z = masked[pixels[:, 1], pixels[:, 0]]
+    points = backproject(pixels, z, camera)
+    area = (stride * z) ** 2 / np.float32(camera[0] * camera[1])
+    votes = cast_votes(
+        points, prediction.probability, prediction.offset_m, area, config=config.voting
+    )
+    return votes, probes, masked
+
+
+def _candidates(
+    depth_m: ArrayLike, camera: NDArray[np.float64], model: FingertipForest, config: DetectorConfig
+) -> tuple[Peaks, NDArray[np.float32], NDArray[np.float32]]:
+    """:func:`candidate_peaks` and the hand depth they come from."""
+    votes, probes, masked = _frame_votes(depth_m, camera, model, config)
+    peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
+    features = peak_features(peaks, votes, probes, camera, bandwidth_m=config.voting.bandwidth_m)
+    return peaks, features, masked
+
+
+def candidate_peaks(
+    depth_m: ArrayLike,
+    intrinsics: ArrayLike,
+    model: FingertipForest,
+    *,
+    config: DetectorConfig = DEFAULT_DETECTOR,
+) -> tuple[Peaks, NDArray[np.float32]]:
+    """Vote peaks above ``config.c_thr`` and their verifier features.
+
+    Parameters
+    ----------
+    depth_m : (H, W) float32
+        Depth in metres, 0 where missing.
+    intrinsics : (4,) float
+        ``(fx, fy, cx, cy)`` in pixels.
+    model : FingertipForest
+    config : DetectorConfig
+
+    Returns
+    -------
+    peaks : Peaks
+        Strongest first.
+    features : (K, len(PEAK_FEATURES)) float32
+        :func:`fingertips.verify.peak_features` of the peaks.
+    """
+    return _candidates(depth_m, intrinsics_array(intrinsics), model, config)[:2]
+
+
+def verified_candidates(
+    depth_m: ArrayLike,
+    intrinsics: ArrayLike,
+    model: FingertipForest,
+    *,
+    config: DetectorConfig = DEFAULT_DETECTOR,
+) -> tuple[Peaks, NDArray[np.float32], NDArray[np.float32] | None]:
+    """Candidate peaks with their verifier probabilities: what the heatmap stage reads.
+
+    Parameters
+    ----------
+    depth_m : (H, W) float32
+        Depth in metres, 0 where missing.
+    intrinsics : (4,) float
+    model : FingertipForest
+        With a peak verifier.
+    config : DetectorConfig
+
+    Returns
+    -------
+    peaks : Peaks
+        Every candidate above ``config.c_thr``, strongest first.
+    probability : (K,) float32
+        Their verifier probabilities.
+    hand_depth_m : (H, W) float32 or None
+        The forest's hand depth when it is cut like the heatmap's crop centre needs it
+        (:func:`fingertips.heatmap.hand_centre`), else None.
+    """
+    if model.verifier is None:
+        raise ValueError("model: has no peak verifier (a [verifier] table)")
+    camera = intrinsics_array(intrinsics)
+    candidates, features, masked = _candidates(depth_m, camera, model, config)
+    same_cut = np.allclose(model.depth_range_m, HAND_DEPTH_RANGE_M, rtol=1e-6) and (
+        config.depth_band_m == HAND_BAND_M
+    )
+    return candidates, verify_peaks(model.verifier, features), masked if same_cut else None
+
+
+def detect_fingertips(
+    depth_m: ArrayLike,
+    intrinsics: ArrayLike,
+    model: FingertipForest,
+    *,
+    model_tips_m: ArrayLike | None = None,
+    config: DetectorConfig = DEFAULT_DETECTOR,
+    lam: float = 1.2,
+    distance_unit_m: float = 0.01,
+) -> tuple[Detection, ...]:
+    """Detect fingertips in a depth frame and, given a posed model, name their fingers.
+
+    Parameters
+    ----------
+    depth_m : (H, W) float32
+        Depth in metres, 0 where missing.
+    intrinsics : (4,) float
+        ``(fx, fy, cx, cy)`` in pixels.
+    model : FingertipForest
+        Trained forest (:func:`fingertips.forest.load_forest`).
+    model_tips_m : (5, 3) float, optional
+        Fingertips of the posed hand model in the camera frame (metres), in the order
+        of :data:`FINGER_NAMES`. When given, detections are assigned to fingers by
+        Eq. 11 of Tzionas et al. 2014.
+    config : DetectorConfig
+        Confidence threshold, pixel grid, hand segmentation and voting settings;
+        :func:`model_detector_config` gives the ones recorded with a trained model.
+    lam : float
+        Weight lambda of the assignment.
+    distance_unit_m : float
+        Unit (metres) of the assignment's detection-to-finger distances.
+
+    Returns
+    -------
+    tuple of Detection
+        Strongest first.
+    """
+    camera = intrinsics_array(intrinsics)
+    if config.min_tip_probability > 0 and model.verifier is None:
+        raise ValueError(
+            "min_tip_probability: the model has no peak verifier; use 0 or a model "
+            "trained with a [verifier] table"
+        )
+    if config.heatmap_min_probability > 0 and model.heatmap is None:
+        raise ValueError(
+            "heatmap_min_probability: the model has no heatmap stage; use 0 or a model "
+            "trained with a [heatmap] table"
+        )
+    depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
+    if model.verifier is None:
+        votes = _frame_votes(depth, camera, model, config)[0]
+        peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
+        detections = _forest_detections(peaks, None, camera)
+    else:
+        candidates, probability, hand = verified_candidates(depth, camera, model, config=config)
+        keep = probability >= config.min_tip_probability
+        peaks = Peaks(candidates.positions_m[keep], candidates.confidences[keep])
+        detections = _forest_detections(peaks, probability[keep], camera)
+        if config.heatmap_min_probability > 0 and model.heatmap is not None:
+            detections += _heatmap_detections(
+                depth, camera, model.heatmap, config, candidates, probability, detections, hand
+            )
+    if model_tips_m is None:
+        return detections
+    return name_fingers(
+        detections,
+        model_tips_m,
+        c_thr=config.c_thr,
+        min_tip_probability=config.min_tip_probability,
+        heatmap_min_probability=config.heatmap_min_probability,
+        lam=lam,
+        distance_unit_m=distance_unit_m,
+    )
+
+
+def _forest_detections(
+    peaks: Peaks, tip_probability: NDArray[np.float32] | None, camera: NDArray[np.float64]
+) -> tuple[Detection, ...]:
+    """Vote peaks (with their verifier probabilities, if any) as detections."""
+    uv = project(peaks.positions_m.astype(np.float64), camera)
+    return tuple(
+        Detection(
+            u_px=float(uv[k, 0]),
+            v_px=float(uv[k, 1]),
+            x_m=float(peaks.positions_m[k, 0]),
+            y_m=float(peaks.positions_m[k, 1]),
+            z_m=float(peaks.positions_m[k, 2]),
+            confidence=float(peaks.confidences[k]),
+            tip_probability=None if tip_probability is None else float(tip_probability[k]),
+        )
+        for k in range(peaks.confidences.size)
+    )
+
+
+def _heatmap_detections(
+    depth_m: NDArray[np.float32],
+    camera: NDArray[np.float64],
+    stage: HeatmapStage,
+    config: DetectorConfig,
+    candidates: Peaks,
+    candidate_probability: NDArray[np.float32],
+    forest_detections: tuple[Detection, ...],
+    hand_depth_m: NDArray[np.float32] | None,
+) -> tuple[Detection, ...]:
+    """The heatmap's accepted peaks, most probable first, each farther than the voting's
+    ``min_separation_m`` from every forest detection and every more probable one."""
+    peaks, probability = heatmap_peaks(
+        depth_m,
+        camera,
+        stage,
+        candidates.positions_m,
+        candidates.confidences,
+        candidate_probability,
+        min_tip_probability=config.min_tip_probability,
+        hand_depth_m=hand_depth_m,
+    )
+    separation = config.voting.min_separation_m
+    taken = list(detection_points(forest_detections))
+    order = []
+    for k in np.argsort(-probability, kind="stable"):  # most probable first
+        if probability[k] < config.heatmap_min_probability:
+            break
+        if all(np.linalg.norm(peaks.xyz_m[k] - point) > separation for point in taken):
+            order.append(k)
+            taken.append(peaks.xyz_m[k])
+    return tuple(
+        Detection(
+            u_px=float(peaks.uv_px[k, 0]),
+            v_px=float(peaks.uv_px[k, 1]),
+            x_m=float(peaks.xyz_m[k, 0]),
+            y_m=float(peaks.xyz_m[k, 1]),
+            z_m=float(peaks.xyz_m[k, 2]),
+            confidence=float(peaks.values[k]),
+            tip_probability=float(probability[k]),
+            source="heatmap",
+        )
+        for k in order
+    )
+
+
+def name_fingers(
+    detections: Sequence[Detection],
+    model_tips_m: ArrayLike,
+    *,
+    c_thr: float,
+    min_tip_probability: float = 0.0,
+    heatmap_min_probability: float = 0.0,
+    lam: float = 1.2,
+    distance_unit_m: float = 0.01,
+) -> tuple[Detection, ...]:
+    """Name the fingers of detections by Eq. 11 of Tzionas et al. 2014.
+
+    A detection's weight ``w_s`` (the cost of leaving it unassigned is ``lam * w_s``)
+    is its confidence over ``c_thr``, as in the paper, or, for verified detections
+    (``min_tip_probability > 0``), its verifier probability over
+    ``min_tip_probability`` (over ``heatmap_min_probability`` for the heatmap's
+    detections): in every case 1 at the threshold that kept it.
+
+    Parameters
+    ----------
+    detections : sequence of Detection
+    model_tips_m : (5, 3) float
+        Fingertips of a posed hand model in the camera frame (metres), in the order of
+        :data:`FINGER_NAMES`.
+    c_thr : float
+        The confidence threshold the detections were kept with.
+    min_tip_probability : float
+        The verifier threshold they were kept with (0: none).
+    heatmap_min_probability : float
+        The heatmap verifier's threshold (used only for heatmap detections).
+    lam : float
+        Weight lambda of the assignment.
+    distance_unit_m : float
+        Unit (metres) of the assignment's detection-to-finger distances.
+
+    Returns
+    -------
+    tuple of Detection
+        The same detections with ``finger`` set (None: left unassigned).
+    """
+    tips = as_array("model_tips_m", model_tips_m, (len(FINGER_NAMES), 3), np.float64)
+    positions = detection_points(detections)
+    verified = min_tip_probability > 0 and all(d.tip_probability is not None for d in detections)
+    if any(d.source == "heatmap" for d in detections) and not heatmap_min_probability > 0:
+        raise ValueError("heatmap_min_probability: needed to weigh the heatmap's detections")
+    if verified:  # each probability over the threshold that kept it
+        thresholds = {"forest": min_tip_probability, "heatmap": heatmap_min_probability}
+        weights = np.array(
+            [float(d.tip_probability or 0.0) for d in detections], dtype=np.float64
+        ) / np.array([thresholds[d.source] for d in detections], dtype=np.float64)
+        threshold = 1.0
+    else:
+        weights = np.array([d.confidence for d in detections], dtype=np.float64)
+        threshold = c_thr
+    assignment = assign_detections(
+        positions, weights, tips, c_thr=threshold, lam=lam, distance_unit_m=distance_unit_m
+    )
+    return tuple(
+        replace(d, finger=FINGER_NAMES[t] if t >= 0 else None)
+        for d, t in zip(detections, assignment.finger_of_detection, strict=True)
+    )
+
+
+def detection_points(detections: Sequence[Detection]) -> NDArray[np.float64]:
+    """Camera-frame positions ``(K, 3)`` of detections, metres."""
+    return np.array([[d.x_m, d.y_m, d.z_m] for d in detections], dtype=np.float64).reshape(-1, 3)
+
+
+def fingertips_output(detections: Sequence[Detection]) -> list[dict[str, Any]]:
+    """The ``fingertips`` list of a ``poses.jsonl`` record (docs/conventions.md)."""
+    return [
+        {
+            "finger": d.finger,
+            "u_px": d.u_px,
+            "v_px": d.v_px,
+            "x_m": d.x_m,
+            "y_m": d.y_m,
+            "z_m": d.z_m,
+            "confidence": d.confidence,
+        }
+        for d in detections
+    ]

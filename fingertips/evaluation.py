@@ -1,0 +1,525 @@
+"""Scoring fingertip detections against annotated depth frames.
+
+An annotated folder has the RGB-D layout of docs/conventions.md (``intrinsic.json``,
+``depth/000000.png``, optional ``meta.json``) plus a JSON-lines file with one object
+per frame, holding ``frame`` and either
+
+* ``fingertips``: ``{finger name: {"xyz_m": [3], "uv_px": [2]}}`` (a finger may be
+  absent), as in ``shared/data/real_depth/hmodel_andrii``; or
+* ``keypoints_3d_m`` (21 x 3) and ``keypoints_2d_px`` (21 x 2) in MediaPipe order,
+  fingertips at 4, 8, 12, 16, 20, as in ``groundtruth.jsonl`` (a frame with
+  ``hand_visible`` false has no fingertips).
+
+Detections are matched to annotated fingertips one-to-one regardless of finger name
+(the detector does not know fingers before assignment), maximising the number of
+pairs within the distance gate.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import linear_sum_assignment
+
+from fingertips.assignment import FINGER_NAMES
+from fingertips.depth_input import DepthSequence, read_depth_scale, read_intrinsics
+from fingertips.detect import (
+    DEFAULT_DETECTOR,
+    Detection,
+    DetectorConfig,
+    detect_fingertips,
+    detection_points,
+)
+from fingertips.detector import FingertipDetector
+from fingertips.forest import FingertipForest
+from glovedb._validate import as_array
+
+MEDIAPIPE_TIPS = (4, 8, 12, 16, 20)
+"""Indices of the thumb, index, middle, ring and little fingertips among 21 keypoints."""
+
+FrameProgress = Callable[[Iterable[NDArray[np.float32]]], Iterable[NDArray[np.float32]]]
+"""Wraps the iterable of depth frames to show progress (e.g. ``tqdm.tqdm``)."""
+
+
+@dataclass(frozen=True)
+class AnnotatedDepth:
+    """Depth frames with fingertip annotations.
+
+    Attributes
+    ----------
+    depth_m : (N, H, W) float32
+        Depth in metres, 0 where missing.
+    intrinsics : (4,) float64
+        ``(fx, fy, cx, cy)`` in pixels.
+    tips_m : (N, 5, 3) float64
+        Fingertips in the camera frame (metres), thumb to little; NaN if not annotated.
+    tips_px : (N, 5, 2) float64
+        Fingertips in the image (pixels); NaN if not annotated.
+    frames : (N,) int64
+        Frame numbers.
+    """
+
+    depth_m: NDArray[np.float32]
+    intrinsics: NDArray[np.float64]
+    tips_m: NDArray[np.float64]
+    tips_px: NDArray[np.float64]
+    frames: NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class FingertipMetrics:
+    """Detection scores, pooled over all frames.
+
+    Attributes
+    ----------
+    frames, detections, annotated_tips : int
+        Counts.
+    precision_15mm, recall_15mm : float
+        Share of detections / annotated tips matched within 15 mm in 3D (NaN if there
+        are none to share).
+    error_3d_mm, error_2d_px : float
+        Mean 3D distance (mm) and 2D distance (px) of the pairs matched within 15 mm.
+    recall_10px : float
+        Share of annotated tips matched within 10 px in the image.
+    error_2d_px_ungated : float
+        Mean 2D distance (px) of a one-to-one matching of detections to annotated tips
+        without a distance gate (each frame pairs min(detections, tips) of them).
+    ms_per_frame : float
+        Mean detection time per frame in milliseconds (NaN when not measured).
+    """
+
+    frames: int
+    detections: int
+    annotated_tips: int
+    precision_15mm: float
+    recall_15mm: float
+    error_3d_mm: float
+    error_2d_px: float
+    recall_10px: float
+    error_2d_px_ungated: float = math.nan
+    ms_per_frame: float = math.nan
+
+    def as_dict(self) -> dict[str, float | int]:
+        """The metrics as a JSON-ready dict."""
+        return asdict(self)
+
+
+def _coordinates(name: str, value: ArrayLike, shape: tuple[int, ...]) -> NDArray[np.float64]:
+    return as_array(name, value, shape, np.float64, kind="fiu", finite=True)
+
+
+def _tips_of_record(record: dict) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Fingertips of one annotation record; NaN rows where a tip is not annotated.
+
+    A record gives ``fingertips`` (``{finger: {"xyz_m", "uv_px"}}``, a missing or null
+    finger is not annotated), or the 21 ``keypoints_3d_m`` and ``keypoints_2d_px``, or
+    ``"hand_visible": false``. Anything else (an unknown finger, a tip with only one
+    of its positions, non-finite values) raises ValueError: a silently dropped tip
+    would change the scores.
+    """
+    tips_m = np.full((len(FINGER_NAMES), 3), np.nan)
+    tips_px = np.full((len(FINGER_NAMES), 2), np.nan)
+    if "fingertips" in record:
+        fingertips = record["fingertips"]
+        if not isinstance(fingertips, dict):
+            raise ValueError(f"fingertips: expected an object, got {fingertips!r}")
+        unknown = sorted(set(fingertips) - set(FINGER_NAMES))
+        if unknown:
+            raise ValueError(f"fingertips: unknown finger {unknown[0]!r}, expected {FINGER_NAMES}")
+        for k, name in enumerate(FINGER_NAMES):
+            tip = fingertips.get(name)
+            if tip is None:
+                continue
+            tips_m[k] = _coordinates(f"fingertips.{name}.xyz_m", tip["xyz_m"], (3,))
+            tips_px[k] = _coordinates(f"fingertips.{name}.uv_px", tip["uv_px"], (2,))
+    elif "keypoints_3d_m" in record or "keypoints_2d_px" in record:
+        if record.get("hand_visible", True):
+            keypoints_m = _coordinates("keypoints_3d_m", record["keypoints_3d_m"], (21, 3))
+            keypoints_px = _coordinates("keypoints_2d_px", record["keypoints_2d_px"], (21, 2))
+            tips_m[:] = keypoints_m[list(MEDIAPIPE_TIPS)]
+            tips_px[:] = keypoints_px[list(MEDIAPIPE_TIPS)]
+    elif record.get("hand_visible", True) is not False:
+        raise ValueError('expected fingertips, keypoints_3d_m or "hand_visible": false')
+    return tips_m, tips_px
+
+
+def _frame_number(value: object) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError(f"frame: expected a whole number >= 0, got {value!r}")
+    return value
+
+
+def read_annotated_depth(
+    folder: str | os.PathLike[str], *, annotations: str = "annotations.jsonl"
+) -> AnnotatedDepth:
+    """Read the depth frames and fingertip annotations of an annotated RGB-D folder.
+
+    Parameters
+    ----------
+    folder : path
+        The sequence folder.
+    annotations : str
+        Name of the JSON-lines annotation file inside ``folder`` (e.g.
+        ``"groundtruth.jsonl"`` for synthetic sequences).
+
+    Returns
+    -------
+    AnnotatedDepth
+        The annotated frames, in file order.
+
+    Raises
+    ------
+    ValueError
+        If a file is missing, an annotation line is malformed, there are no annotated
+        frames, or a depth image is not a 16-bit PNG of the size ``intrinsic.json``
+        gives.
+    """
+    root = Path(folder)
+    path = root / annotations
+    if not path.is_file() or not (root / "intrinsic.json").is_file():
+        raise ValueError(f"{root}: expected intrinsic.json and {annotations}")
+    frames, tips_m, tips_px = [], [], []
+    seen: set[int] = set()
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as error:
+        raise ValueError(f"{path}: not UTF-8 text (byte {error.start})") from error
+    for number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+            frame = _frame_number(record["frame"])
+            frame_m, frame_px = _tips_of_record(record)
+        except (json.JSONDecodeError, KeyError, TypeError, AttributeError) as error:
+            raise ValueError(f"{path}:{number}: not an annotation record ({error!r})") from error
+        except ValueError as error:
+            raise ValueError(f"{path}:{number}: {error}") from error
+        if frame in seen:
+            raise ValueError(f"{path}:{number}: frame {frame} is annotated twice")
+        seen.add(frame)
+        frames.append(frame)
+        tips_m.append(frame_m)
+        tips_px.append(frame_px)
+    if not frames:
+        raise ValueError(f"{path}: no annotated frames")
+    intrinsics, size = read_intrinsics(root)
+    sequence = DepthSequence(root, intrinsics, size, read_depth_scale(root), tuple(frames))
+    return AnnotatedDepth(
+        depth_m=np.stack([sequence.read_depth(frame) for frame in frames]),
+        intrinsics=intrinsics,
+        tips_m=np.stack(tips_m),
+        tips_px=np.stack(tips_px),
+        frames=np.array(frames, dtype=np.int64),
+    )
+
+
+def match_within(distance: NDArray[np.float64], gate: float) -> tuple[NDArray, NDArray]:
+    """Largest one-to-one matching with ``distance <= gate``, cheapest among those.
+
+    Parameters
+    ----------
+    distance : (S, T) float
+        Pairwise distances; NaN never matches.
+    gate : float
+
+    Returns
+    -------
+    rows, cols : (K,) intp
+        Matched index pairs.
+    """
+    allowed = np.isfinite(distance) & (distance <= gate)
+    # A penalty above any sum of allowed distances makes the count come first.
+    penalty = 1.0 + gate * (min(distance.shape) + 1)
+    cost = np.where(allowed, np.nan_to_num(distance), penalty)
+    rows, cols = linear_sum_assignment(cost)
+    keep = allowed[rows, cols]
+    return rows[keep], cols[keep]
+
+
+def match_frame_2d(
+    uv_px: NDArray[np.float64], tips_px: NDArray[np.float64], *, gate_px: float = 10.0
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Which annotated tips and which detections of one frame are paired within ``gate_px``.
+
+    The one-to-one matching of ``recall_at_10px`` (:func:`match_within` on image
+    distances).
+
+    Parameters
+    ----------
+    uv_px : (K, 2) float
+        Detections, pixels.
+    tips_px : (5, 2) float
+        Annotated fingertips, pixels; NaN rows are not annotated (never found).
+    gate_px : float
+
+    Returns
+    -------
+    tip_found : (5,) bool
+    detection_matched : (K,) bool
+    """
+    detections = np.asarray(uv_px, dtype=np.float64).reshape(-1, 2)
+    tips = np.asarray(tips_px, dtype=np.float64).reshape(-1, 2)
+    annotated = np.flatnonzero(np.all(np.isfinite(tips), axis=1))
+    distance = np.linalg.norm(detections[:, None] - tips[None, annotated], axis=2)
+    rows, cols = match_within(distance, gate_px)
+    tip_found = np.zeros(tips.shape[0], dtype=bool)
+    tip_found[annotated[cols]] = True
+    detection_matched = np.zeros(detections.shape[0], dtype=bool)
+    detection_matched[rows] = True
+    return tip_found, detection_matched
+
+
+def _safe_ratio(numerator: float, denominator: float) -> float:
+    return numerator / denominator if denominator else math.nan
+
+
+def fingertip_metrics(
+    detections: Sequence[Sequence[Detection]],
+    tips_m: NDArray[np.float64],
+    tips_px: NDArray[np.float64],
+    *,
+    gate_3d_m: float = 0.015,
+    gate_2d_px: float = 10.0,
+    ms_per_frame: float = math.nan,
+) -> FingertipMetrics:
+    """Score per-frame detections against annotated fingertips.
+
+    Parameters
+    ----------
+    detections : sequence of sequences of Detection
+        One sequence per frame.
+    tips_m : (N, 5, 3) float
+        Annotated fingertips, metres; NaN where not annotated.
+    tips_px : (N, 5, 2) float
+        Annotated fingertips, pixels; NaN where not annotated.
+    gate_3d_m, gate_2d_px : float
+        Match gates in 3D (metres) and 2D (pixels).
+    ms_per_frame : float
+        Detection time to report with the scores (from :func:`run_detector`).
+
+    Returns
+    -------
+    FingertipMetrics
+    """
+    if not len(detections) == tips_m.shape[0] == tips_px.shape[0]:
+        raise ValueError("detections, tips_m, tips_px: expected one entry per frame each")
+    if np.any(np.all(np.isfinite(tips_m), axis=2) != np.all(np.isfinite(tips_px), axis=2)):
+        raise ValueError("tips_m, tips_px: every tip needs both positions or neither")
+    n_det = n_tip = matched_3d = matched_2d = 0
+    errors_3d: list[float] = []
+    errors_2d: list[float] = []
+    errors_ungated: list[float] = []
+    for frame_dets, frame_m, frame_px in zip(detections, tips_m, tips_px, strict=True):
+        annotated = np.all(np.isfinite(frame_m), axis=1)
+        xyz = detection_points(frame_dets)
+        uv = np.array([[d.u_px, d.v_px] for d in frame_dets]).reshape(-1, 2)
+        distance_3d = np.linalg.norm(xyz[:, None] - frame_m[None, annotated], axis=2)
+        distance_2d = np.linalg.norm(uv[:, None] - frame_px[None, annotated], axis=2)
+        rows, cols = match_within(distance_3d, gate_3d_m)
+        errors_3d.extend(1000.0 * distance_3d[rows, cols])
+        errors_2d.extend(distance_2d[rows, cols])
+        n_det += len(frame_dets)
+        n_tip += int(annotated.sum())
+        matched_3d += rows.size
+        matched_2d += int(match_frame_2d(uv, frame_px, gate_px=gate_2d_px)[0].sum())
+        if distance_2d.size:
+            rows_all, cols_all = linear_sum_assignment(distance_2d)
+            errors_ungated.extend(distance_2d[rows_all, cols_all])
+    return FingertipMetrics(
+        frames=len(detections),
+        detections=n_det,
+        annotated_tips=n_tip,
+        precision_15mm=_safe_ratio(matched_3d, n_det),
+        recall_15mm=_safe_ratio(matched_3d, n_tip),
+        error_3d_mm=float(np.mean(errors_3d)) if errors_3d else math.nan,
+        error_2d_px=float(np.mean(errors_2d)) if errors_2d else math.nan,
+        recall_10px=_safe_ratio(matched_2d, n_tip),
+        error_2d_px_ungated=float(np.mean(errors_ungated)) if errors_ungated else math.nan,
+        ms_per_frame=ms_per_frame,
+    )
+
+
+def evaluate_detector(
+    data: AnnotatedDepth,
+    model: FingertipForest,
+    *,
+    config: DetectorConfig = DEFAULT_DETECTOR,
+    progress: FrameProgress | None = None,
+) -> FingertipMetrics:
+    """Run :func:`detect_fingertips` on every frame and score the detections.
+
+    Parameters
+    ----------
+    data : AnnotatedDepth
+    model : FingertipForest
+    config : DetectorConfig
+    progress : callable, optional
+        Wraps the frame iterable (e.g. ``tqdm.tqdm``) to show progress.
+
+    Returns
+    -------
+    FingertipMetrics
+        Including the mean wall-clock detection time per frame.
+    """
+    detections, ms_per_frame = run_detector(data, model, config=config, progress=progress)
+    return fingertip_metrics(detections, data.tips_m, data.tips_px, ms_per_frame=ms_per_frame)
+
+
+def run_detector(
+    data: AnnotatedDepth,
+    model: FingertipForest,
+    *,
+    config: DetectorConfig = DEFAULT_DETECTOR,
+    progress: FrameProgress | None = None,
+) -> tuple[list[tuple[Detection, ...]], float]:
+    """:func:`detect_fingertips` on every frame of ``data``.
+
+    Parameters
+    ----------
+    data : AnnotatedDepth
+    model : FingertipForest
+    config : DetectorConfig
+    progress : FrameProgress, optional
+
+    Returns
+    -------
+    detections : list of tuple of Detection
+        One tuple per frame.
+    ms_per_frame : float
+        Mean wall-clock detection time, milliseconds, after one untimed run on the
+        first frame (which loads the heatmap network into onnxruntime and the compiled
+        forest code).
+    """
+    frames: Iterable[NDArray[np.float32]] = data.depth_m
+    if len(data.depth_m):
+        detect_fingertips(data.depth_m[0], data.intrinsics, model, config=config)
+    if progress is not None:
+        frames = progress(frames)
+    detections = []
+    elapsed = 0.0
+    for depth in frames:
+        start = time.perf_counter()
+        detections.append(detect_fingertips(depth, data.intrinsics, model, config=config))
+        elapsed += time.perf_counter() - start
+    return detections, 1000.0 * elapsed / max(len(detections), 1)
+
+
+@dataclass(frozen=True)
+class PoseGuessMetrics:
+    """How well :meth:`FingertipDetector.guess_pose` starts a tracker, against rendered truth.
+
+    Attributes
+    ----------
+    frames : int
+        Right-hand frames with a visible hand (the guess fits a right hand).
+    guessed : int
+        Of those, frames with a guess (at least three detections).
+    rotation_deg_median, wrist_mm_median, keypoint_mm_median : float
+        Medians over the guessed frames: rotation angle error, wrist distance, mean
+        distance of the 21 keypoints.
+    within_15deg : float
+        Share of the guessed frames with a rotation error below 15 degrees.
+    ms_per_guess : float
+        Mean wall-clock time of a guess, over the guessed frames (detection not
+        included).
+    """
+
+    frames: int
+    guessed: int
+    rotation_deg_median: float
+    wrist_mm_median: float
+    keypoint_mm_median: float
+    within_15deg: float
+    ms_per_guess: float
+
+    def as_dict(self) -> dict[str, float | int]:
+        """The metrics as a JSON-ready dict."""
+        return asdict(self)
+
+
+def evaluate_pose_guesses(
+    folder: str | os.PathLike[str],
+    detector: FingertipDetector,
+    *,
+    posture_rad: NDArray[np.float64] | None = None,
+    progress: Callable[[Iterable[int]], Iterable[int]] | None = None,
+) -> PoseGuessMetrics:
+    """Score pose guesses on a rendered folder whose ``groundtruth.jsonl`` has poses.
+
+    Parameters
+    ----------
+    folder : path
+        Written by ``glove fingertips synth`` or ``glove render-sequence``.
+    detector : FingertipDetector
+    posture_rad : (20,) or (P, 20) float, optional
+        Postures offered to the guess (default: the detector's, the named postures).
+    progress : callable, optional
+        Wraps the iterable of scored record indices (e.g. ``tqdm.tqdm``).
+
+    Raises
+    ------
+    ValueError
+        If ``groundtruth.jsonl`` is missing, or a line of it lacks a pose field
+        (:func:`tracker.evaluation.read_groundtruth`).
+    """
+    from fingertips.depth_input import open_depth_sequence
+    from glovedb.hand_model import make_skeleton
+    from glovedb.rotations import geodesic_angle
+    from tracker.evaluation import read_groundtruth
+
+    root = Path(folder)
+    path = root / "groundtruth.jsonl"
+    if not path.is_file():
+        raise ValueError(f"{root}: pose guesses need groundtruth.jsonl (a rendered folder)")
+    truth = read_groundtruth(path)  # every line's pose fields, FILE:LINE on errors
+    # The fields the tracker's ground truth does not have: which hand, and its length.
+    extras = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    sequence = open_depth_sequence(root)
+    rows, elapsed = [], 0.0
+    usable = [
+        k
+        for k, extra in enumerate(extras)
+        if truth.hand_visible[k] and extra.get("hand", "right") == "right"
+    ]
+    for k in progress(usable) if progress is not None else usable:
+        depth = sequence.read_depth(int(truth.frames[k]))
+        detections = detector.detect(depth, sequence.intrinsics)
+        length = extras[k].get("hand_length_m")
+        skeleton = make_skeleton(float(length)) if length is not None else None
+        started = time.perf_counter()
+        guess = detector.guess_pose(
+            detections, depth, sequence.intrinsics, posture_rad=posture_rad, skeleton=skeleton
+        )
+        if guess is None:
+            continue
+        elapsed += time.perf_counter() - started
+        rows.append(
+            (
+                float(np.degrees(geodesic_angle(guess.rotation, truth.rotation[k]))),
+                1000.0 * float(np.linalg.norm(guess.translation_m - truth.translation_m[k])),
+                1000.0
+                * float(
+                    np.linalg.norm(guess.keypoints_3d_m - truth.keypoints_3d_m[k], axis=1).mean()
+                ),
+            )
+        )
+    errors = np.array(rows).reshape(-1, 3)
+    median = np.median(errors, axis=0) if rows else np.full(3, math.nan)
+    return PoseGuessMetrics(
+        frames=len(usable),
+        guessed=len(rows),
+        rotation_deg_median=float(median[0]),
+        wrist_mm_median=float(median[1]),
+        keypoint_mm_median=float(median[2]),
+        within_15deg=_safe_ratio(float(np.sum(errors[:, 0] < 15.0)), len(rows)),
+        ms_per_guess=1000.0 * elapsed / max(len(rows), 1),
+    )
