@@ -3,19 +3,21 @@
 How a build stays safe when it is interrupted:
 
 1. Every posture's tiny images are written to their own shard file in a work folder
-   ``DB.h5.parts/`` beside the output, by writing a temporary name and renaming it,
-   so a shard is either complete or absent. The folder also holds the plan's
-   settings; ``--resume`` checks them and renders only the missing shards.
+   ``DB.h5.parts/`` beside the output, already in the database's row code, by
+   writing a temporary name and renaming it, so a shard is either complete or
+   absent. The folder also holds the plan's settings; ``--resume`` checks them and
+   renders only the missing shards.
 2. When every shard exists, the database is assembled into ``DB.h5.partial``, marked
    complete last, and renamed to ``DB.h5``; then the work folder is removed. A
    reader refuses a file that is not marked complete.
 
 Workers are separate processes started with ``spawn`` (never ``fork``: the calling
-process may hold an OpenGL context, which must not cross a fork), each with its own
-renderer, a software rasteriser (``glovedb.rasterize``) that needs no context; with
-``executor="ray"`` they are Ray actors on a cluster (``builder.ray_executor``). Shards
-are assembled in posture order, so the output depends neither on the number of workers
-nor on the executor, and two builds of one config give the same bytes.
+process may hold an OpenGL context, which must not cross a fork) while the plan is
+made, each with its own renderer, a software rasteriser (``glovedb.rasterize``) that
+needs no context; with ``executor="ray"`` they are Ray actors on a cluster
+(``builder.ray_executor``). Shards are assembled in posture order, so the output
+depends neither on the number of workers nor on the executor, and two builds of one
+config give the same bytes.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
-from functools import partial
+from multiprocessing.queues import SimpleQueue
 from pathlib import Path
 from typing import Any, Literal
 
@@ -41,9 +43,10 @@ from numpy.typing import ArrayLike, NDArray
 import glovedb
 from builder.config import MAX_POSTURES, DatabaseConfig
 from builder.sampling import farthest_point_selection, synergy_postures
+from glovedb._row_codec import HEADER_BYTES, encode_rows
 from glovedb._threads import single_threaded_blas
 from glovedb.camera import CameraIntrinsics
-from glovedb.database import FORMAT_NAME, FORMAT_VERSION, image_dataset_options
+from glovedb.database import FORMAT_NAME, FORMAT_VERSION
 from glovedb.hand_model import forward_kinematics, make_skeleton
 from glovedb.mesh import cached_hand_mesh, pose_mesh
 from glovedb.posture_io import load_postures
@@ -187,10 +190,15 @@ def make_plan(config: DatabaseConfig) -> BuildPlan:
 
 
 def stored_settings(config: DatabaseConfig) -> dict[str, Any]:
-    """The settings recorded in the database (and compared on ``--resume``)."""
+    """The settings recorded in the database (and compared on ``--resume``: shards of
+    another format version are not resumed)."""
     settings = config.as_dict()
     settings.pop("base_dir")
-    return {"project_version": glovedb.__version__, "config": settings}
+    return {
+        "project_version": glovedb.__version__,
+        "format_version": FORMAT_VERSION,
+        "config": settings,
+    }
 
 
 # Rendering one posture -------------------------------------------------------------
@@ -265,16 +273,18 @@ def shard_path(parts: Path, posture_index: int) -> Path:
 
 
 def write_shard(parts: Path, posture_index: int, images: dict[int, NDArray[np.uint8]]) -> None:
-    """Write one posture's images atomically (temporary name, then rename).
+    """Write one posture's images atomically (temporary name, then rename), encoded.
 
-    A shard is one flat uint8 ``.npy``: the images of every size, smallest size first,
-    each ``(V, s, s)`` block contiguous. Uncompressed: compressing costs a quarter of
-    a worker's time, and shards are temporary (they take about as much disk as the
-    finished database); no zip either, so a shard is read back as a memory map.
+    A shard is one flat uint8 ``.npy``: the ``(V,) int64`` row lengths of every size,
+    smallest size first, then the rows of every size in the same order, in the
+    database's run-length code (:mod:`glovedb._row_codec`): encoding here spreads it
+    over the workers, shrinks the shards to the finished database's size, and leaves
+    the assembly only bytes to copy. No zip, so a shard is read back as a memory map.
     """
     final = shard_path(parts, posture_index)
     temporary = final.with_suffix(".tmp.npy")
-    blocks = [np.ascontiguousarray(images[size], np.uint8) for size in sorted(images)]
+    encoded = [encode_rows(images[size]) for size in sorted(images)]
+    blocks = [lengths.view(np.uint8) for _, lengths in encoded] + [rows for rows, _ in encoded]
     header = {
         "descr": np.lib.format.dtype_to_descr(np.dtype(np.uint8)),
         "fortran_order": False,
@@ -289,17 +299,20 @@ def write_shard(parts: Path, posture_index: int, images: dict[int, NDArray[np.ui
 
 def read_shard(
     parts: Path, posture_index: int, sizes: tuple[int, ...], views: int
-) -> dict[int, NDArray[np.uint8]]:
-    """``{size: (views, s, s) uint8}`` of one shard, as views of a read-only memory map."""
-    shard = np.load(shard_path(parts, posture_index), mmap_mode="r", allow_pickle=False)
-    if shard.shape != (views * sum(s * s for s in sizes),):
-        raise ValueError(f"{shard_path(parts, posture_index)}: unexpected shard shape")
-    images, start = {}, 0
-    for size in sorted(sizes):
-        stop = start + views * size * size
-        images[size] = shard[start:stop].reshape(views, size, size)
-        start = stop
-    return images
+) -> dict[int, tuple[NDArray[np.int64], NDArray[np.uint8]]]:
+    """``{size: (lengths, rows)}`` of one shard: ``(views,) int64`` row lengths and the
+    rows' bytes, as views of a read-only memory map."""
+    path = shard_path(parts, posture_index)
+    shard = np.load(path, mmap_mode="r", allow_pickle=False)
+    head = 8 * views * len(sizes)
+    if shard.dtype != np.uint8 or shard.ndim != 1 or len(shard) < head:
+        raise ValueError(f"{path}: not a shard of this build")
+    lengths = shard[:head].view(np.int64).reshape(len(sizes), views)
+    stops = head + np.cumsum(lengths.sum(axis=1))
+    if lengths.min() <= HEADER_BYTES or stops[-1] != len(shard):
+        raise ValueError(f"{path}: not a shard of this build")
+    starts = np.r_[head, stops[:-1]]
+    return {size: (lengths[k], shard[starts[k] : stops[k]]) for k, size in enumerate(sorted(sizes))}
 
 
 # State of a worker process (its renderer), set once by the pool's initializer: the
@@ -308,12 +321,19 @@ def read_shard(
 _WORKER: dict[str, Any] = {}
 
 
-def _worker_start(plan: BuildPlan, parts: str) -> None:
+def _worker_start(plans: SimpleQueue) -> None:
+    """Wait for ``(plan, parts)`` (None: nothing to render) and make the renderer.
+
+    Workers start while the main process plans, so their imports take no time of the
+    build; the plan then travels to them: planning again (e.g. a farthest-point
+    selection of 1,000 out of 20,000 postures) would take seconds in every worker.
+    """
     single_threaded_blas()
-    # The plan travels to the worker: planning again (e.g. a farthest-point selection
-    # of 1,000 out of 20,000 postures) would take seconds in every worker.
-    _WORKER["renderer"] = PostureRenderer(plan)
-    _WORKER["parts"] = Path(parts)
+    message = plans.get()
+    if message is not None:
+        plan, parts = message
+        _WORKER["renderer"] = PostureRenderer(plan)
+        _WORKER["parts"] = Path(parts)
 
 
 def _worker_render(posture_index: int) -> int:
@@ -415,13 +435,15 @@ def build_database(
     if address is not None and executor != "ray":
         raise ValueError("address: a Ray cluster address needs the ray executor")
     started = time.perf_counter()
-    plan = make_plan(config)
-    plan_seconds = time.perf_counter() - started
     parts = out.with_name(out.name + ".parts")
     settings = stored_settings(config)
-    # Connect before touching the parts folder, so a bad address leaves nothing behind.
+    _check_parts(parts, settings, resume)
+    # Connect before touching the parts folder, so a bad address leaves nothing behind;
+    # local workers start now and import while the plan is made.
     with _shard_renderer(executor, address, workers) as render_shards:
-        _prepare_parts(parts, settings, resume)
+        plan = make_plan(config)
+        plan_seconds = time.perf_counter() - started
+        _prepare_parts(parts, settings)
         pending = [p for p in range(len(plan.postures_rad)) if not shard_path(parts, p).exists()]
 
         render_started = time.perf_counter()
@@ -449,24 +471,30 @@ def build_database(
     )
 
 
-def _prepare_parts(parts: Path, settings: dict[str, Any], resume: bool) -> None:
-    settings_file = parts / "settings.json"
+def _check_parts(parts: Path, settings: dict[str, Any], resume: bool) -> None:
+    """An existing parts folder is an error, unless resuming a build of the settings."""
+    if not parts.exists():
+        return
+    if not resume:
+        raise ValueError(
+            f"{parts} holds an interrupted build: add --resume to continue it, or delete it"
+        )
+    try:
+        previous = json.loads((parts / "settings.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        previous = None
+    if previous != json.loads(json.dumps(settings)):
+        raise ValueError(f"{parts}: the interrupted build has other settings; delete it")
+
+
+def _prepare_parts(parts: Path, settings: dict[str, Any]) -> None:
+    """Make the parts folder, or clean the one being resumed (checked before)."""
     if parts.exists():
-        if not resume:
-            raise ValueError(
-                f"{parts} holds an interrupted build: add --resume to continue it, or delete it"
-            )
-        try:
-            previous = json.loads(settings_file.read_text())
-        except (OSError, json.JSONDecodeError):
-            previous = None
-        if previous != json.loads(json.dumps(settings)):
-            raise ValueError(f"{parts}: the interrupted build has other settings; delete it")
         for leftover in parts.glob("*.tmp.npy"):
             leftover.unlink()
         return
     parts.mkdir()
-    settings_file.write_text(json.dumps(settings, indent=1, sort_keys=True))
+    (parts / "settings.json").write_text(json.dumps(settings, indent=1, sort_keys=True))
 
 
 @contextmanager
@@ -475,7 +503,11 @@ def _shard_renderer(
 ) -> Iterator[Callable[[BuildPlan, Path, list[int]], Iterator[int]]]:
     """The executor's ``render(plan, parts, pending)`` function, while it is open."""
     if executor == "local":
-        yield partial(_render_shards, workers=workers)
+        if workers == 1:
+            yield _render_here
+        else:
+            with _worker_pool(workers) as render:
+                yield render
         return
     from builder.ray_executor import ray_shard_renderer
 
@@ -483,23 +515,72 @@ def _shard_renderer(
         yield render
 
 
-def _render_shards(plan: BuildPlan, parts: Path, pending: list[int], workers: int) -> Iterator[int]:
+def _render_here(plan: BuildPlan, parts: Path, pending: list[int]) -> Iterator[int]:
     if not pending:
         return
-    if workers == 1:
-        renderer = PostureRenderer(plan)
-        for index in pending:
-            with single_threaded_blas():
-                images = renderer.tiny_images(index)
-            write_shard(parts, index, images)
-            yield index
-        return
+    renderer = PostureRenderer(plan)
+    for index in pending:
+        with single_threaded_blas():
+            images = renderer.tiny_images(index)
+        write_shard(parts, index, images)
+        yield index
+
+
+@contextmanager
+def _worker_pool(workers: int) -> Iterator[Callable[[BuildPlan, Path, list[int]], Iterator[int]]]:
+    """``render(plan, parts, pending)`` on worker processes started at once (see
+    :func:`_worker_start`); call it at most once."""
     context = multiprocessing.get_context("spawn")
-    arguments = (plan, str(parts))
+    plans = context.SimpleQueue()
+    sent = False
+
+    def render(plan: BuildPlan, parts: Path, pending: list[int]) -> Iterator[int]:
+        nonlocal sent
+        if pending:
+            for _ in range(workers):
+                plans.put((plan, str(parts)))
+            sent = True
+            yield from pool.map(_worker_render, pending)
+
     with ProcessPoolExecutor(
-        max_workers=workers, mp_context=context, initializer=_worker_start, initargs=arguments
+        max_workers=workers, mp_context=context, initializer=_worker_start, initargs=(plans,)
     ) as pool:
-        yield from pool.map(_worker_render, pending)
+        # The pool starts a worker per task submitted while none is idle.
+        for _ in range(workers):
+            pool.submit(int)
+        try:
+            yield render
+        finally:
+            if not sent:
+                for _ in range(workers):
+                    plans.put(None)
+
+
+def _write_rows(
+    file: h5py.File, parts: Path, sizes: tuple[int, ...], views: int, postures: int
+) -> None:
+    """``/tiny/<s>/rows`` and ``offsets`` of every size, copied from the shards."""
+    lengths = {size: np.empty((postures, views), np.int64) for size in sizes}
+    for posture in range(postures):  # the row lengths first: the datasets' sizes
+        for size, (shard_lengths, _) in read_shard(parts, posture, sizes, views).items():
+            lengths[size][posture] = shard_lengths
+    datasets = {}
+    for size in sizes:
+        offsets = np.concatenate([[0], np.cumsum(lengths[size])])
+        file[f"tiny/{size}/offsets"] = offsets
+        datasets[size] = file.create_dataset(f"tiny/{size}/rows", (offsets[-1],), np.uint8)
+    # Postures in batches of about 64 MB of rows, each size's written in one piece.
+    per_posture = sum(int(length.sum()) for length in lengths.values()) // postures
+    batch = max(1, (1 << 26) // max(per_posture, 1))
+    written = dict.fromkeys(sizes, 0)
+    for start in range(0, postures, batch):
+        shards = [
+            read_shard(parts, p, sizes, views) for p in range(start, min(postures, start + batch))
+        ]
+        for size in sizes:
+            rows = np.concatenate([shard[size][1] for shard in shards])
+            datasets[size][written[size] : written[size] + len(rows)] = rows
+            written[size] += len(rows)
 
 
 def _assemble(plan: BuildPlan, parts: Path, partial: Path, settings: dict[str, Any]) -> None:
@@ -535,28 +616,5 @@ def _assemble(plan: BuildPlan, parts: Path, partial: Path, settings: dict[str, A
             "entries/rotation", data=np.tile(view_rotations, (postures, 1, 1)),
             chunks=(min(entries, 1 << 16), 3, 3), compression="gzip", compression_opts=4,
         )  # fmt: skip
-        datasets = {
-            size: file.create_dataset(
-                f"tiny/{size}",
-                shape=(entries, size, size),
-                dtype=np.uint8,
-                **image_dataset_options(size, entries),
-            )
-            for size in sizes
-        }
-        # Chunked (compressed) sizes are written in batches of whole chunks' worth of
-        # postures; contiguous ones posture by posture, straight from the shard's map.
-        chunked = [size for size, dataset in datasets.items() if dataset.chunks is not None]
-        batch = max(1, (1 << 26) // (views * sum(s * s for s in chunked or sizes)))
-        for start in range(0, postures, batch):
-            stop = min(postures, start + batch)
-            shards = [read_shard(parts, p, sizes, views) for p in range(start, stop)]
-            for size in chunked:
-                rows = np.concatenate([shard[size] for shard in shards])
-                datasets[size][start * views : stop * views] = rows
-            for offset, shard in enumerate(shards):
-                first = (start + offset) * views
-                for size, dataset in datasets.items():
-                    if size not in chunked:
-                        dataset[first : first + views] = shard[size]
+        _write_rows(file, parts, sizes, views, postures)
         attrs["complete"] = True

@@ -2,10 +2,13 @@
 
 See ``docs/database_format.md`` for the layout. In short: entry ``e`` shows posture
 ``e // V`` from view ``e % V`` (V views per posture); ``/entries`` holds both ids and
-the rotation ``cam_R_hand`` of every entry; ``/tiny/<s>`` holds the ``(N, s, s) uint8``
-tiny images. A file is a database only when its root attribute ``complete`` is true:
-the builder sets it last, then renames the file into place, so an interrupted build
-never looks valid.
+the rotation ``cam_R_hand`` of every entry; ``/tiny/<s>`` holds the tiny images of
+size ``s``: in format 2 a group of every entry's row in a run-length code
+(:mod:`glovedb._row_codec`), ``rows`` (bytes) and ``offsets`` (``(N + 1,) int64``,
+row ``e`` is ``rows[offsets[e]:offsets[e + 1]]``); in format 1, which is still read,
+an ``(N, s, s) uint8`` dataset. A file is a database only when its root attribute
+``complete`` is true: the builder sets it last, then renames the file into place, so
+an interrupted build never looks valid.
 
 The reader opens files read-only and holds no lock, so many processes can read one
 database at once.
@@ -14,6 +17,7 @@ database at once.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,13 +27,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from glovedb._closing import Closing
+from glovedb._row_codec import HEADER_BYTES, decode_rows
 from glovedb._validate import as_array
 
 FORMAT_NAME = "glove-posture-db"
-FORMAT_VERSION = 1
-# Sizes up to this are chunked and compressed (read whole); larger ones are stored
-# contiguous and uncompressed so that single rows can be read cheaply.
-LARGEST_COMPRESSED_SIZE = 16
+FORMAT_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -46,6 +48,7 @@ class DatabaseInfo:
     size_bytes: int
     name: str
     project_version: str
+    format_version: int
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary."""
@@ -60,15 +63,78 @@ class DatabaseInfo:
             "resolutions": list(self.resolutions),
             "size_bytes": self.size_bytes,
             "project_version": self.project_version,
+            "format_version": self.format_version,
         }
 
 
-def image_dataset_options(size: int, entries: int) -> dict[str, Any]:
-    """h5py ``create_dataset`` options for the ``(entries, size, size)`` tiny images."""
-    if size <= LARGEST_COMPRESSED_SIZE:
-        rows = max(1, min(entries, (1 << 20) // (size * size)))
-        return {"chunks": (rows, size, size), "compression": "gzip", "compression_opts": 4}
-    return {}
+@dataclass(frozen=True)
+class RowLayout:
+    """Where the tiny images of one size lie in a database file, row by row.
+
+    Attributes
+    ----------
+    size : int
+        Images are ``(size, size)``.
+    offsets : (N + 1,) int64
+        Entry ``e`` is bytes ``offsets[e]:offsets[e + 1]`` of the row data.
+    encoded : bool
+        Rows in the run-length code (format 2), else ``size * size`` raw bytes.
+    file_offset : int or None
+        Byte of the file where the row data begins; None when HDF5 does not store
+        it in one piece (format 1's compressed sizes).
+    """
+
+    size: int
+    offsets: NDArray[np.int64]
+    encoded: bool
+    file_offset: int | None
+
+
+def read_rows(
+    layout: RowLayout,
+    read: Callable[[int, int], bytes],
+    ids: NDArray[np.integer],
+    where: str,
+) -> NDArray[np.uint8]:
+    """Images of the given entries, ``(len(ids), s, s) uint8`` in ``ids`` order.
+
+    Parameters
+    ----------
+    layout : RowLayout
+    read : callable
+        ``read(start, length)``: ``length`` bytes from byte ``start`` of the row data.
+        Called once per run of consecutive entries, in ascending order.
+    ids : (k,) int
+        Entries in ``0..N-1``, any order, repeats allowed (checked by the caller).
+    where : str
+        The file, for error messages.
+
+    Raises
+    ------
+    ValueError
+        When the file is shorter than its offsets say, or a row is damaged.
+    """
+    size = layout.size
+    ids = np.asarray(ids, np.int64)
+    unique, inverse = np.unique(ids, return_inverse=True)
+    if not len(unique):
+        return np.zeros((0, size, size), np.uint8)
+    gaps = np.flatnonzero(np.diff(unique) != 1) + 1
+    firsts = unique[np.r_[0, gaps]]
+    lasts = unique[np.r_[gaps - 1, len(unique) - 1]]
+    offsets = layout.offsets
+    starts, spans = offsets[firsts], offsets[lasts + 1] - offsets[firsts]
+    pieces = map(read, starts.tolist(), spans.tolist())
+    data = np.frombuffer(bytearray().join(pieces), np.uint8)
+    if len(data) != spans.sum():
+        raise ValueError(f"{where}: damaged database, shorter than its /tiny/{size} offsets")
+    lengths = offsets[unique + 1] - offsets[unique]
+    if layout.encoded:
+        stops = np.cumsum(lengths)
+        images = _decoded(data, stops - lengths, stops, size, unique, where)
+    else:
+        images = data.reshape(len(unique), size, size)
+    return images if np.array_equal(unique, ids) else images[inverse]
 
 
 class GloveDatabase(Closing):
@@ -88,6 +154,7 @@ class GloveDatabase(Closing):
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self._file = open_database_file(self.path)
+        self.format_version = int(self._file.attrs["format_version"])
         try:
             self._check()
         except Exception:
@@ -104,9 +171,13 @@ class GloveDatabase(Closing):
                 f"{self.path}: {entries} entries, expected {postures} postures x {views} views"
             )
         for size in self.resolutions:
-            shape = file[f"tiny/{size}"].shape
-            if shape != (entries, size, size):
-                raise ValueError(f"{self.path}: /tiny/{size} has shape {shape}")
+            if self.format_version == 1:
+                dataset = file[f"tiny/{size}"]
+                shape = getattr(dataset, "shape", "no shape (a group)")
+                if shape != (entries, size, size):
+                    raise ValueError(f"{self.path}: /tiny/{size} has shape {shape}")
+            else:
+                self._row_offsets(size, entries)
         try:  # parsed now, so that a damaged file fails when opened, not mid-run
             dict(json.loads(file.attrs["settings_json"]))
         except (KeyError, ValueError, TypeError) as error:
@@ -152,6 +223,7 @@ class GloveDatabase(Closing):
             size_bytes=self.path.stat().st_size,
             name=str(attrs["name"]),
             project_version=str(attrs["project_version"]),
+            format_version=self.format_version,
         )
 
     # Arrays --------------------------------------------------------------------
@@ -185,33 +257,110 @@ class GloveDatabase(Closing):
 
     def images(self, size: int) -> NDArray[np.uint8]:
         """All tiny images of one size, ``(N, s, s) uint8`` (read into memory)."""
-        return np.asarray(self._dataset(size)[()])
+        self._check_size(size)
+        if self.format_version == 1:
+            return np.asarray(self._file[f"tiny/{size}"][()])
+        offsets = self._row_offsets(size)
+        data = np.asarray(self._file[f"tiny/{size}/rows"][()])
+        return _decoded(data, offsets[:-1], offsets[1:], size, None, str(self.path))
 
     def image_rows(self, size: int, ids: NDArray[np.integer]) -> NDArray[np.uint8]:
         """Tiny images of the given entries, ``(len(ids), s, s) uint8``, in ``ids`` order."""
         ids = as_array("ids", ids, (None,), np.int64)
-        dataset = self._dataset(size)
-        if len(ids) and (ids.min() < 0 or ids.max() >= dataset.shape[0]):
-            raise ValueError(f"ids: entries must lie in 0..{dataset.shape[0] - 1}")
-        order = np.argsort(ids, kind="stable")
-        unique, inverse = np.unique(ids[order], return_inverse=True)
-        rows = dataset[unique] if len(unique) else np.zeros((0, size, size), np.uint8)
-        result = np.empty((len(ids), size, size), np.uint8)
-        result[order] = rows[inverse]
-        return result
+        self._check_size(size)
+        entries = len(self._file["entries/posture_id"])
+        if len(ids) and (ids.min() < 0 or ids.max() >= entries):
+            raise ValueError(f"ids: entries must lie in 0..{entries - 1}")
+        if self.format_version == 1:
+            dataset = self._file[f"tiny/{size}"]
+            order = np.argsort(ids, kind="stable")
+            unique, inverse = np.unique(ids[order], return_inverse=True)
+            rows = dataset[unique] if len(unique) else np.zeros((0, size, size), np.uint8)
+            result = np.empty((len(ids), size, size), np.uint8)
+            result[order] = rows[inverse]
+            return result
+        rows = self._file[f"tiny/{size}/rows"]
+        return read_rows(
+            RowLayout(size, self._row_offsets(size), True, _file_offset(rows)),
+            lambda start, length: rows[start : start + length].tobytes(),
+            ids,
+            str(self.path),
+        )
 
-    def _dataset(self, size: int) -> h5py.Dataset:
+    def row_layout(self, size: int) -> RowLayout | None:
+        """Where the images of one size lie in the file (see :class:`RowLayout`); None
+        when they cannot be read row by row (format 1's compressed sizes)."""
+        self._check_size(size)
+        if self.format_version == 1:
+            dataset = self._file[f"tiny/{size}"]
+            if dataset.chunks is not None or dataset.compression is not None:
+                return None
+            offsets = np.arange(dataset.shape[0] + 1, dtype=np.int64) * (size * size)
+            return RowLayout(size, offsets, False, _file_offset(dataset))
+        rows = self._file[f"tiny/{size}/rows"]
+        return RowLayout(size, self._row_offsets(size), True, _file_offset(rows))
+
+    def _row_offsets(self, size: int, entries: int | None = None) -> NDArray[np.int64]:
+        """The checked ``(N + 1,)`` offsets of format 2's rows of one size."""
+        group = self._file[f"tiny/{size}"]
+        where = f"{self.path}: damaged database, /tiny/{size}"
+        datasets = [group.get(name) for name in ("rows", "offsets")] if isinstance(
+            group, h5py.Group
+        ) else []  # fmt: skip
+        if len(datasets) != 2 or not all(isinstance(d, h5py.Dataset) for d in datasets):
+            raise ValueError(f"{where} is not a group of rows and offsets")
+        rows, offsets = datasets
+        if entries is None:
+            entries = len(self._file["entries/posture_id"])
+        if (rows.dtype, rows.ndim, offsets.dtype, offsets.shape) != (
+            np.uint8, 1, np.int64, (entries + 1,)
+        ):  # fmt: skip
+            raise ValueError(
+                f"{where} has rows {rows.shape} {rows.dtype}, offsets {offsets.shape} "
+                f"{offsets.dtype}; expected offsets ({entries + 1},) int64"
+            )
+        bounds = np.asarray(offsets[()])
+        # Every row holds its hash and at least one run.
+        if bounds[0] != 0 or bounds[-1] != len(rows) or np.any(np.diff(bounds) <= HEADER_BYTES):
+            raise ValueError(f"{where}: offsets do not split its {len(rows)} bytes into rows")
+        return bounds
+
+    def _check_size(self, size: int) -> None:
         if size not in self.resolutions:
             raise ValueError(
                 f"size: the database has tiny images of {self.resolutions}, not {size}"
             )
-        return self._file[f"tiny/{size}"]
 
     # Lifetime ------------------------------------------------------------------
 
     def close(self) -> None:
         """Close the file."""
         self._file.close()
+
+
+def _decoded(
+    data: NDArray[np.uint8],
+    starts: NDArray[np.int64],
+    stops: NDArray[np.int64],
+    size: int,
+    ids: NDArray[np.int64] | None,
+    where: str,
+) -> NDArray[np.uint8]:
+    """Decoded rows, or a one-line ``ValueError`` naming the first damaged entry (from
+    ``ids``, the entries of the rows; the row's index when None)."""
+    images, damaged, reason = decode_rows(data, starts, stops, size)
+    if damaged >= 0:
+        entry = damaged if ids is None else ids[damaged]
+        raise ValueError(f"{where}: damaged database, /tiny/{size} entry {entry}: {reason}")
+    return images
+
+
+def _file_offset(dataset: h5py.Dataset) -> int | None:
+    """Byte of the file where a contiguous, unfiltered dataset's data begins, else None."""
+    if dataset.chunks is not None or dataset.compression is not None:
+        return None
+    offset = dataset.id.get_offset()
+    return None if offset is None else int(offset)
 
 
 def open_database_file(path: Path) -> h5py.File:
@@ -241,6 +390,8 @@ def check_header(file: h5py.File, path: Path) -> None:
     version = int(attrs.get("format_version", -1))
     if version > FORMAT_VERSION:
         raise ValueError(f"{path}: format version {version} is newer than this program reads")
+    if version < 1:
+        raise ValueError(f"{path}: damaged database, format_version {version}")
     if not bool(attrs.get("complete", False)):
         raise ValueError(
             f"{path}: unfinished database (an interrupted build); resume or rebuild it"

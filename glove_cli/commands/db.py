@@ -11,7 +11,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     actions.required = True
     info = actions.add_parser(
         "info",
-        help="entries, postures, views, resolutions, size",
+        help="entries, postures, views, resolutions, size, format version",
         description="Print what a posture database holds.",
     )
     info.add_argument("database", help="database file (.h5)")
@@ -35,6 +35,8 @@ def run_info(args: argparse.Namespace) -> int:
     print(f"  views per posture  {info.views_per_posture} "
           f"({info.camera_positions} camera positions x {info.rolls} rolls)")  # fmt: skip
     print(f"  resolutions        {', '.join(f'{s}x{s}' for s in info.resolutions)}")
-    print(f"  size               {info.size_bytes / 2**20:,.1f} MiB")
+    print(f"  size               {info.size_bytes / 2**20:,.1f} MiB "
+          f"({info.size_bytes / max(info.entries, 1):,.0f} bytes per entry)")  # fmt: skip
+    print(f"  format version     {info.format_version}")
     print(f"  built by           glove {info.project_version}")
     return 0

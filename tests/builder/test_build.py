@@ -12,10 +12,19 @@ import numpy as np
 import pytest
 from helpers import SMALL_DATABASE
 
-from builder.build import PostureRenderer, build_database, make_plan
+from builder.build import (
+    PostureRenderer,
+    build_database,
+    make_plan,
+    read_shard,
+    shard_path,
+    stored_settings,
+    write_shard,
+)
 from builder.config import config_from_dict, load_config
+from glovedb._row_codec import encode_rows
 from glovedb.chamfer import symmetric_distance
-from glovedb.database import GloveDatabase
+from glovedb.database import FORMAT_VERSION, GloveDatabase
 from glovedb.postures import named_posture
 from glovedb.resources import config_path
 from glovedb.tiny_images import tiny_images
@@ -103,6 +112,28 @@ def test_resume_after_a_killed_build_equals_an_uninterrupted_build(tmp_path):
     uninterrupted = tmp_path / "straight.h5"
     build_database(load_config(config_file), uninterrupted)
     assert out.read_bytes() == uninterrupted.read_bytes()
+
+
+def test_shards_hold_the_encoded_rows_and_old_shards_are_not_resumed(tmp_path):
+    images = {8: np.zeros((3, 8, 8), np.uint8), 16: np.ones((3, 16, 16), np.uint8)}
+    images[16][1, 4:9, 2:7] = 7
+    write_shard(tmp_path, 4, images)
+    for size, (lengths, rows) in read_shard(tmp_path, 4, (8, 16), 3).items():
+        expected_rows, expected_lengths = encode_rows(images[size])
+        np.testing.assert_array_equal(lengths, expected_lengths)
+        np.testing.assert_array_equal(rows, expected_rows)
+    # A shard of format 1 (raw images) is refused, not misread ...
+    np.save(shard_path(tmp_path, 5), np.zeros(3 * (64 + 256), np.uint8))
+    with pytest.raises(ValueError, match="not a shard of this build"):
+        read_shard(tmp_path, 5, (8, 16), 3)
+    # ... and --resume does not continue a build of another format version.
+    settings = stored_settings(small_config())
+    assert settings["format_version"] == FORMAT_VERSION
+    parts = tmp_path / "old.h5.parts"
+    parts.mkdir()
+    (parts / "settings.json").write_text(json.dumps({**settings, "format_version": 1}))
+    with pytest.raises(ValueError, match="other settings"):
+        build_database(small_config(), tmp_path / "old.h5", resume=True)
 
 
 def test_an_unfinished_file_is_not_a_database(small_database, tmp_path):

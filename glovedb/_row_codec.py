@@ -1,0 +1,182 @@
+"""The run-length code of tiny image rows (database format 2), in compiled loops.
+
+A row (one tiny image, in raster order) is stored as
+
+- 4 bytes: the FNV-1a hash (32 bits, little-endian) of the run bytes that follow, so
+  that damaged data is refused instead of decoded into a wrong image;
+- its runs of equal labels, in order. A head byte ``label << 4 | c`` holds the label
+  (0..15) and, when ``c < 15``, the run length ``c + 1``; when ``c == 15`` the length
+  is ``16 + n``, ``n`` in the bytes that follow (7 bits a byte, low bits first, the
+  high bit set on every byte but the last).
+
+Tiny images are label images, a few hundred runs at 64 x 64: a row takes about a
+twelfth of the raw bytes. Encoding scans 8 pixels a step (little-endian words: x86-64
+and ARM64), about 2 microseconds a 64 x 64 image; decoding fills each run with one
+``memset``, about 1.5 microseconds.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numba
+import numpy as np
+from numba.cpython.unsafe.numbers import trailing_zeros
+from numpy.typing import NDArray
+
+from glovedb._validate import as_array
+
+HEADER_BYTES = 4
+LARGEST_LABEL = 15
+_FNV_OFFSET = 2166136261
+_FNV_PRIME = 16777619
+_REASONS = ("", "its hash does not match its bytes", "its runs do not fill the image")
+
+
+def encode_rows(images: NDArray[np.uint8]) -> tuple[NDArray[np.uint8], NDArray[np.int64]]:
+    """Encode every image as one row.
+
+    Parameters
+    ----------
+    images : (M, s, s) uint8
+        Labels 0..15; ``s * s`` a multiple of 8.
+
+    Returns
+    -------
+    data : (B,) uint8
+        The rows, one after another.
+    lengths : (M,) int64
+        Bytes of each row.
+    """
+    if sys.byteorder != "little":
+        raise RuntimeError("the tiny image row code needs a little-endian machine")
+    images = as_array("images", images, (None, None, None), np.uint8)
+    pixels = images.shape[1] * images.shape[2]
+    if pixels % 8:
+        raise ValueError(f"images: s * s must be a multiple of 8, got {images.shape}")
+    flat = np.ascontiguousarray(images).reshape(len(images), pixels)
+    if flat.size and flat.max() > LARGEST_LABEL:
+        raise ValueError(f"images: labels must lie in 0..{LARGEST_LABEL}, got {flat.max()}")
+    data = np.empty(len(flat) * (HEADER_BYTES + flat.shape[1]), np.uint8)  # a run a pixel
+    lengths = np.empty(len(flat), np.int64)
+    used = _encode(flat, data, lengths)
+    return data[:used].copy(), lengths
+
+
+def decode_rows(
+    data: NDArray[np.uint8], starts: NDArray[np.int64], stops: NDArray[np.int64], size: int
+) -> tuple[NDArray[np.uint8], int, str]:
+    """Decode the rows ``data[starts[k]:stops[k]]`` (which the caller has checked lie
+    inside ``data``) into images.
+
+    Returns
+    -------
+    images : (M, size, size) uint8
+        Undefined from the first damaged row on.
+    damaged : int
+        Index of the first damaged row; -1 when none is.
+    reason : str
+        Why it is damaged ("" when none is).
+    """
+    images = np.empty((len(starts), size, size), np.uint8)
+    damaged, reason = _decode(data, starts, stops, images.reshape(len(starts), size * size))
+    return images, int(damaged), _REASONS[reason]
+
+
+@numba.njit(cache=True, nogil=True)
+def _hash(data: NDArray[np.uint8], start: int, stop: int) -> int:
+    value = _FNV_OFFSET
+    for i in range(start, stop):
+        value = ((value ^ data[i]) * _FNV_PRIME) & 0xFFFFFFFF
+    return value
+
+
+@numba.njit(cache=True, nogil=True)
+def _encode(flat: NDArray[np.uint8], data: NDArray[np.uint8], lengths: NDArray[np.int64]) -> int:
+    pixels = flat.shape[1]
+    words = flat.view(np.uint64)
+    at = 0
+    for row in range(flat.shape[0]):
+        first = at
+        at += HEADER_BYTES
+        line = flat[row]
+        previous = np.uint64(line[0])  # the pixel before each word's first
+        run_start = 0
+        for w in range(words.shape[1]):
+            word = words[row, w]
+            # Byte k is non-zero where pixel 8w + k differs from the pixel before it.
+            starts = word ^ ((word << np.uint64(8)) | previous)
+            previous = word >> np.uint64(56)
+            while starts != 0:
+                bit = int(trailing_zeros(starts))  # type: ignore[call-arg]
+                start = 8 * w + (bit >> 3)
+                at = _put_run(data, at, line[run_start], start - run_start)
+                run_start = start
+                starts &= ~(np.uint64(255) << np.uint64(bit & 56))
+        at = _put_run(data, at, line[run_start], pixels - run_start)
+        value = _hash(data, first + HEADER_BYTES, at)
+        for b in range(HEADER_BYTES):
+            data[first + b] = (value >> (8 * b)) & 255
+        lengths[row] = at - first
+    return at
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _put_run(data: NDArray[np.uint8], at: int, label: int, run: int) -> int:
+    if run < 16:
+        data[at] = (label << 4) | (run - 1)
+        return at + 1
+    data[at] = (label << 4) | 15
+    at += 1
+    rest = run - 16
+    while rest >= 128:
+        data[at] = (rest & 127) | 128
+        at += 1
+        rest >>= 7
+    data[at] = rest
+    return at + 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _decode(
+    data: NDArray[np.uint8],
+    starts: NDArray[np.int64],
+    stops: NDArray[np.int64],
+    out: NDArray[np.uint8],
+) -> tuple[int, int]:
+    pixels = out.shape[1]
+    for row in range(starts.shape[0]):
+        start = starts[row]
+        stop = stops[row]
+        if stop - start <= HEADER_BYTES:
+            return row, 2
+        stored = 0
+        for b in range(HEADER_BYTES):
+            stored |= int(data[start + b]) << (8 * b)
+        if _hash(data, start + HEADER_BYTES, stop) != stored:
+            return row, 1
+        line = out[row]
+        at = start + HEADER_BYTES
+        i = 0
+        while at < stop:
+            head = data[at]
+            at += 1
+            run = int(head & 15) + 1
+            if run == 16:
+                shift = 0
+                more = True
+                while more:
+                    if at >= stop or shift > 21:
+                        return row, 2
+                    byte = data[at]
+                    at += 1
+                    run += int(byte & 127) << shift
+                    shift += 7
+                    more = byte >= 128
+            if i + run > pixels:
+                return row, 2
+            line[i : i + run] = head >> 4
+            i += run
+        if i != pixels:
+            return row, 2
+    return -1, 0
