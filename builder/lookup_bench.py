@@ -6,6 +6,13 @@ VGA camera, rendered, and spoiled with camera-like label noise (a ragged silhoue
 misclassified and missing glove pixels). Each query's exact nearest entry under the
 last stage's distance is found by brute force over the whole (untiled) database, and
 compared with what the cascade returns.
+
+The default index (``DatabaseIndex(first_stage="auto")``: distinct images when they
+repeat, :mod:`glovedb.distinct_images`) is also checked against the exhaustive cascade,
+the same cascade with a first stage that scans every entry's packed images: its top-1
+must be the same database entry (tiled copies count as the same entry). The exhaustive
+cascade's first-stage data, 32 bytes per entry at 8x8, read once by one core, is the
+memory reference the first stage and the whole lookup are judged against.
 """
 
 from __future__ import annotations
@@ -13,6 +20,7 @@ from __future__ import annotations
 import functools
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,10 +32,17 @@ from builder.sampling import synergy_postures
 from glovedb.camera import KINECT_V1
 from glovedb.chamfer import chamfer_maps
 from glovedb.database import GloveDatabase
-from glovedb.lookup import DatabaseIndex
+from glovedb.distinct_images import DistinctTinyImages
+from glovedb.lookup import DatabaseIndex, FirstStage
 from glovedb.postures import load_named_postures
 from glovedb.rotations import quaternion_to_matrix
-from glovedb.search import CoarseMaps, pack_tiny_images, parse_cascade, tiny_image_distances
+from glovedb.search import (
+    CoarseMaps,
+    SearchResult,
+    pack_tiny_images,
+    parse_cascade,
+    tiny_image_distances,
+)
 from glovedb.tiny_images import tiny_images
 from glovedb.views import HAND_CENTRE
 
@@ -45,7 +60,13 @@ class LookupBenchmark:
     and the renderer that made the queries. ``first_stage_mb`` and
     ``first_stage_read_ms`` are the size of the first stage's resident codes and the
     time one core takes to read them once (the median of 5 plain sums): the memory
-    speed of this machine, against which the first stage's time can be judged.
+    speed of this machine, against which the first stage's time can be judged. They
+    are those of the exhaustive cascade (every entry's packed codes), whatever
+    ``first_stage`` the timed index uses. ``exhaustive_latency_ms`` times that
+    cascade, ``same_top1`` says per query whether the timed index's top-1 is the
+    exhaustive cascade's entry, ``index_build_s`` and ``index_mb`` are the time to
+    open the timed index (file read, first-stage structures built) and the bytes of
+    its first-stage structure, ``distinct_images`` the number of images it scans.
     """
 
     entries: int
@@ -59,9 +80,19 @@ class LookupBenchmark:
     process_rss_mb: float
     first_stage_mb: float = 0.0
     first_stage_read_ms: float = 0.0
+    first_stage: str = "scan"
+    exhaustive_latency_ms: NDArray[np.float64] | None = None
+    same_top1: NDArray[np.bool_] | None = None
+    index_build_s: float = 0.0
+    index_mb: float = 0.0
+    scanned_images: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         k = parse_cascade(self.cascade)[-1].k
+        median = float(np.median(self.latency_ms))
+        first_median = float(np.median(self.stage_ms[:, 0]))
+        read = self.first_stage_read_ms
+        exhaustive = self.exhaustive_latency_ms
         return {
             "entries": self.entries,
             "base_entries": self.base_entries,
@@ -79,7 +110,19 @@ class LookupBenchmark:
             "rss_mb": round(self.rss_mb, 1),
             "process_rss_mb": round(self.process_rss_mb, 1),
             "first_stage_mb": round(self.first_stage_mb, 3),
-            "first_stage_read_ms": round(self.first_stage_read_ms, 3),
+            "first_stage_read_ms": round(read, 3),
+            "median_over_read": round(median / read, 2) if read > 0 else None,
+            "first_stage_over_read": round(first_median / read, 2) if read > 0 else None,
+            "first_stage": self.first_stage,
+            "scanned_images": self.scanned_images,
+            "index_build_s": round(self.index_build_s, 3),
+            "index_mb": round(self.index_mb, 1),
+            "exhaustive_latency_ms_median": None
+            if exhaustive is None
+            else round(float(np.median(exhaustive)), 3),
+            "recall_top1_vs_exhaustive": None
+            if self.same_top1 is None
+            else round(float(np.mean(self.same_top1)), 4),
         }
 
 
@@ -128,28 +171,37 @@ def label_noise(labels: NDArray[np.uint8], rng: np.random.Generator) -> NDArray[
 
 
 def brute_force_errors(
-    index: DatabaseIndex, query: NDArray[np.uint8], *, entries: int | None = None
+    index: DatabaseIndex, queries: NDArray[np.uint8], *, entries: int | None = None
 ) -> NDArray[np.float32]:
-    """Directed distance of every distinct entry to a query image, chunk by chunk.
+    """Directed distance of every distinct entry to each query image, chunk by chunk.
+
+    Each chunk of entries is read and packed once for all the queries (reading and
+    packing 756,000 images of 64 x 64 take far longer than scanning them).
 
     Parameters
     ----------
     index : DatabaseIndex
-    query : (s, s) uint8
+    queries : (..., s, s) uint8
+        One query image or a stack of them.
     entries : int, optional
         Only the first ``entries`` entries of the file (a truncated database);
         default all of them (tiling repeats them, so adds nothing).
+
+    Returns
+    -------
+    (..., entries) float32
     """
-    size = query.shape[0]
-    maps = chamfer_maps(query)
+    size = queries.shape[-1]
+    stack = queries.reshape(-1, size, size)
+    maps = [chamfer_maps(query) for query in stack]
     count = index.base_entries if entries is None else min(entries, index.base_entries)
-    errors = np.empty(count, np.float32)
+    errors = np.empty((len(stack), count), np.float32)
     for start in range(0, count, _BRUTE_FORCE_CHUNK):
         ids = np.arange(start, min(count, start + _BRUTE_FORCE_CHUNK))
-        errors[start : start + len(ids)] = tiny_image_distances(
-            maps, pack_tiny_images(index.rows(size, ids))
-        )
-    return errors
+        packed = pack_tiny_images(index.rows(size, ids))
+        for query_maps, query_errors in zip(maps, errors, strict=True):
+            query_errors[start : start + len(ids)] = tiny_image_distances(query_maps, packed)
+    return errors.reshape((*queries.shape[:-2], count))
 
 
 def exact_nearest_errors(
@@ -161,10 +213,9 @@ def exact_nearest_errors(
 ) -> NDArray[np.float64]:
     """The smallest error of any searched entry for each query at ``size`` (brute force);
     ``entries`` as in :func:`brute_force_errors`."""
+    queries = np.stack([query[size] for query in query_images])
     with DatabaseIndex(database, resident_sizes=()) as index:
-        return np.array(
-            [float(brute_force_errors(index, q[size], entries=entries).min()) for q in query_images]
-        )
+        return brute_force_errors(index, queries, entries=entries).min(axis=1).astype(np.float64)
 
 
 def run_lookup_benchmark(
@@ -178,51 +229,87 @@ def run_lookup_benchmark(
     query_images: list[dict[int, NDArray[np.uint8]]] | None = None,
     exact_errors: NDArray[np.float64] | None = None,
     coarse_maps: CoarseMaps = "cell_mean",
+    first_stage: FirstStage = "auto",
 ) -> LookupBenchmark:
-    """Time held-out lookups and score them against brute force.
+    """Time held-out lookups and score them against brute force and the exhaustive cascade.
 
     ``query_images`` and ``exact_errors`` (from :func:`held_out_queries` and
     :func:`exact_nearest_errors` at the cascade's last size) may be passed in to reuse
     them across runs; by default they are made here. ``coarse_maps`` as in
-    :func:`glovedb.search.cascade_search`.
+    :func:`glovedb.search.cascade_search`, ``first_stage`` as in
+    :class:`glovedb.lookup.DatabaseIndex`.
     """
     with GloveDatabase(database) as checked:  # a bad file or cascade fails before rendering
         parse_cascade(cascade, sizes=checked.resolutions)
     if query_images is None:
         query_images = held_out_queries(queries, seed=seed)
-    last = parse_cascade(cascade)[-1]
+    stages = parse_cascade(cascade)
     if exact_errors is None:
-        exact_errors = exact_nearest_errors(database, query_images, last.size, entries=entries)
-    rss_before = _resident_mb()
-    with DatabaseIndex(database, tile_to=entries) as index:
-        parse_cascade(cascade, sizes=index.resolutions)
-        search = functools.partial(
+        exact_errors = exact_nearest_errors(
+            database, query_images, stages[-1].size, entries=entries
+        )
+
+    def searcher(index: DatabaseIndex) -> Callable[[dict[int, NDArray[np.uint8]]], SearchResult]:
+        return functools.partial(
             index.search, cascade=cascade, workers=workers, coarse_maps=coarse_maps
         )
-        search(query_images[0])  # warm-up: compile, map pages
-        latencies, stage_times, ranks = [], [], []
-        for query, best in zip(query_images, exact_errors, strict=True):
-            started = time.perf_counter()
-            result = search(query)
-            latencies.append((time.perf_counter() - started) * 1000.0)
-            stage_times.append(result.stage_ms)
+
+    with DatabaseIndex(database, tile_to=entries, first_stage="scan") as exhaustive:
+        exhaustive_results, exhaustive_ms = _timed_searches(searcher(exhaustive), query_images)
+        packed = exhaustive.packed(stages[0].size)
+        first_stage_mb, read_ms = packed.codes.nbytes / 1e6, memory_read_ms(packed.codes)
+        exhaustive_top1 = exhaustive.base_ids(
+            np.array([result.entry_ids[0] for result in exhaustive_results])
+        )
+    del exhaustive, packed
+    rss_before = _resident_mb()
+    started = time.perf_counter()
+    with DatabaseIndex(database, tile_to=entries, first_stage=first_stage) as index:
+        build_s = time.perf_counter() - started
+        scanned = index.first_stage_images(stages[0].size)
+        results, latencies = _timed_searches(searcher(index), query_images)
+        ranks = []
+        for result, best in zip(results, exact_errors, strict=True):
             # The exact nearest error: a returned entry with that error is a hit (ties).
             hits = np.flatnonzero(np.isclose(result.errors, best, rtol=0, atol=1e-5))
-            ranks.append(int(hits[0]) + 1 if len(hits) else last.k + 1)
-        first = index.packed(parse_cascade(cascade)[0].size)
+            ranks.append(int(hits[0]) + 1 if len(hits) else stages[-1].k + 1)
+        top1 = index.base_ids(np.array([result.entry_ids[0] for result in results]))
         return LookupBenchmark(
             entries=index.entries,
             base_entries=index.base_entries,
             cascade=cascade,
             queries=len(query_images),
-            latency_ms=np.array(latencies),
-            stage_ms=np.array(stage_times),
+            latency_ms=latencies,
+            stage_ms=np.array([result.stage_ms for result in results]),
             ranks=np.array(ranks),
             rss_mb=_resident_mb() - rss_before,
             process_rss_mb=_resident_mb(),
-            first_stage_mb=first.codes.nbytes / 1e6,
-            first_stage_read_ms=memory_read_ms(first.codes),
+            first_stage_mb=first_stage_mb,
+            first_stage_read_ms=read_ms,
+            first_stage="distinct" if isinstance(scanned, DistinctTinyImages) else "scan",
+            exhaustive_latency_ms=exhaustive_ms,
+            same_top1=top1 == exhaustive_top1,
+            index_build_s=build_s,
+            index_mb=scanned.nbytes / 1e6,
+            scanned_images=scanned.images.num_entries
+            if isinstance(scanned, DistinctTinyImages)
+            else scanned.num_entries,
         )
+
+
+def _timed_searches(
+    search: Callable[[dict[int, NDArray[np.uint8]]], SearchResult],
+    query_images: list[dict[int, NDArray[np.uint8]]],
+) -> tuple[list[SearchResult], NDArray[np.float64]]:
+    """Results and wall times (ms) of searching every query, after a warm-up search
+    (compiling, mapping pages)."""
+    search(query_images[0])
+    results, latencies = [], []
+    for query in query_images:
+        started = time.perf_counter()
+        results.append(search(query))
+        latencies.append((time.perf_counter() - started) * 1000.0)
+    return results, np.array(latencies)
 
 
 def memory_read_ms(array: NDArray[Any], repeats: int = 5) -> float:

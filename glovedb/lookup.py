@@ -1,10 +1,11 @@
 """A posture database ready for searching: resident packed images plus rows read on demand.
 
 :class:`DatabaseIndex` is the thin stateful edge around :mod:`glovedb.search`: it keeps
-the sizes that a cascade scans in full packed in memory (32 bytes per entry at 8x8),
-reads the larger sizes' rows straight from the file (only the few candidates of the
-later stages), and turns a query's tiny images into
-the nearest entries and their interpolated posture and rotation.
+the sizes that a cascade scans in full in memory, packed (32 bytes per entry at 8x8)
+or, when images repeat, as distinct images (:mod:`glovedb.distinct_images`: the same
+result from scanning each image once), reads the larger sizes' rows straight from the
+file (only the few candidates of the later stages), and turns a query's tiny images
+into the nearest entries and their interpolated posture and rotation.
 """
 
 from __future__ import annotations
@@ -13,12 +14,15 @@ import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal, TypeAlias
 
 import numpy as np
 from numpy.typing import NDArray
 
 from glovedb._closing import Closing
-from glovedb.database import GloveDatabase
+from glovedb._validate import check_choice
+from glovedb.database import GloveDatabase, RowLayout, read_rows
+from glovedb.distinct_images import DistinctTinyImages, distinct_tiny_images
 from glovedb.search import (
     CascadeStage,
     CoarseMaps,
@@ -35,6 +39,13 @@ from glovedb.search import (
 DEFAULT_CASCADE = "8:2000,16:300,64:3"
 # The thesis' cascade (Figure 4.10), kept for comparison.
 THESIS_CASCADE = "16:500,64:3"
+
+FirstStage: TypeAlias = Literal["auto", "distinct", "scan"]
+FIRST_STAGES: tuple[FirstStage, ...] = ("auto", "distinct", "scan")
+_DISTINCT_AT_MOST = 0.75
+"""``first_stage="auto"`` scans the distinct images when there are at most this many
+per entry. Both give the same result; with fewer repeats the grouping saves little
+scan time and costs 8 bytes per entry more than the packed images alone."""
 
 
 def default_cascade(sizes: tuple[int, ...]) -> str:
@@ -80,12 +91,18 @@ class DatabaseIndex(Closing):
     path : str or Path
         A complete database (see :mod:`glovedb.database`).
     resident_sizes : sequence of int, optional
-        Sizes packed into memory at once. By default the smallest, which cascades
-        scan in full; any other size used as a cascade's first stage is packed on
-        first use. The other stages read only their candidates' rows from the file.
+        Sizes made ready for a first stage at once. By default the smallest, which
+        cascades scan in full; any other size used as a cascade's first stage is made
+        ready on first use. The other stages read only their candidates' rows from the
+        file.
     tile_to : int, optional
         Benchmarks only: repeat the entries until there are this many, to measure
         speed beyond the size that was built.
+    first_stage : {"auto", "distinct", "scan"}
+        How the first stage scans: every entry's packed images (``"scan"``), each
+        distinct image once (``"distinct"``, :mod:`glovedb.distinct_images`; same
+        result), or distinct images when they are at most 3/4 of the entries
+        (``"auto"``; tiled benchmarks always, natural1000's 722,888 of 756,000 not).
 
     Attributes
     ----------
@@ -103,7 +120,10 @@ class DatabaseIndex(Closing):
         *,
         resident_sizes: tuple[int, ...] | None = None,
         tile_to: int | None = None,
+        first_stage: FirstStage = "auto",
     ) -> None:
+        check_choice("first_stage", first_stage, FIRST_STAGES)
+        self.first_stage = first_stage
         self.path = Path(path)
         self._database = GloveDatabase(self.path)
         base_entries = self._database.info().entries
@@ -117,10 +137,11 @@ class DatabaseIndex(Closing):
         self.resolutions = self._database.resolutions
         self.hand_length_m = float(self._database.settings["config"]["hand_length_m"])
         self._packed: dict[int, PackedTinyImages] = {}
+        self._first: dict[int, PackedTinyImages | DistinctTinyImages] = {}
         self._rows: dict[int, _RowReader | NDArray[np.uint8]] = {}
         wanted = resident_sizes if resident_sizes is not None else self.resolutions[:1]
         for size in wanted:
-            self.packed(size)
+            self.first_stage_images(size)
 
     # Entries -------------------------------------------------------------------
 
@@ -139,13 +160,36 @@ class DatabaseIndex(Closing):
     # Images --------------------------------------------------------------------
 
     def packed(self, size: int) -> PackedTinyImages:
-        """Resident packed images of one size (packed on first use)."""
+        """Resident packed images of every entry at one size (packed on first use)."""
         if size not in self._packed:
-            images = self._database.images(size)
-            if self.entries != self.base_entries:
-                images = np.resize(images, (self.entries, size, size))
-            self._packed[size] = pack_tiny_images(images)
+            self._packed[size] = self._pack(self._database.images(size))
         return self._packed[size]
+
+    def first_stage_images(self, size: int) -> PackedTinyImages | DistinctTinyImages:
+        """What a first stage at ``size`` scans (made on first use; see ``first_stage``)."""
+        if size in self._first:
+            return self._first[size]
+        images = self._database.images(size)
+        if self.first_stage != "scan":
+            tiled = self.entries != self.base_entries
+            distinct = distinct_tiny_images(
+                images,
+                image_of_entry=np.arange(self.entries) % self.base_entries if tiled else None,
+            )
+            repeats = distinct.num_images <= _DISTINCT_AT_MOST * self.entries
+            if self.first_stage == "distinct" or repeats:
+                self._first[size] = distinct
+                return distinct
+        if size not in self._packed:
+            self._packed[size] = self._pack(images)
+        self._first[size] = self._packed[size]
+        return self._packed[size]
+
+    def _pack(self, images: NDArray[np.uint8]) -> PackedTinyImages:
+        """Pack the file's images of one size, repeated or cut to ``entries``."""
+        if self.entries != self.base_entries:
+            images = np.resize(images, (self.entries, *images.shape[1:]))
+        return pack_tiny_images(images)
 
     def rows(self, size: int, ids: NDArray[np.int64]) -> NDArray[np.uint8]:
         """Images of the given entries, ``(len(ids), s, s) uint8``."""
@@ -158,7 +202,9 @@ class DatabaseIndex(Closing):
         """What :func:`~glovedb.search.cascade_search` needs for these stages."""
         sources: dict[int, TinyImageSource] = {}
         for index, stage in enumerate(stages):
-            if index == 0 or stage.size in self._packed:
+            if index == 0:
+                sources[stage.size] = self.first_stage_images(stage.size)
+            elif stage.size in self._packed:
                 sources[stage.size] = self.packed(stage.size)
             else:
                 sources[stage.size] = functools.partial(self.rows, stage.size)
@@ -212,49 +258,46 @@ class DatabaseIndex(Closing):
 
 
 class _RowReader:
-    """Rows of a contiguous image dataset, read from the file one row at a time.
+    """Rows of one image size, read from the file with positioned reads.
 
     Not a memory map: a mapping keeps every page it touched resident, and a kernel
     that caches files in large folios maps up to 2 MB per touched row (on this
     machine a 1,000,000-entry benchmark grew by about 1 MB per 32 x 32 row read). A
-    positioned read costs a system call per row, about 3 microseconds (used for
-    datasets larger than :data:`_IN_MEMORY_BYTES`).
+    positioned read costs a system call per run of consecutive entries, about 3
+    microseconds, and a format-2 row about 1.8 microseconds more to decode at
+    64 x 64 (used for sizes larger than :data:`_IN_MEMORY_BYTES` decoded).
     """
 
-    def __init__(self, path: Path, offset: int, shape: tuple[int, ...]) -> None:
+    def __init__(self, path: Path, layout: RowLayout) -> None:
+        if layout.file_offset is None:
+            raise ValueError(f"{path}: /tiny/{layout.size} is not stored in one piece")
         self._fd = os.open(path, os.O_RDONLY)
-        self._offset = offset
-        self._shape = shape[1:]
-        self._row_bytes = int(np.prod(self._shape))
+        self._path = str(path)
+        self._layout = layout
+        self._start = layout.file_offset
 
     def __getitem__(self, ids: NDArray[np.integer]) -> NDArray[np.uint8]:
-        rows = np.empty((len(ids), *self._shape), np.uint8)
-        flat = rows.reshape(len(ids), self._row_bytes)
-        for k, entry in enumerate(np.asarray(ids, dtype=np.int64).tolist()):
-            data = os.pread(self._fd, self._row_bytes, self._offset + entry * self._row_bytes)
-            if len(data) != self._row_bytes:
-                raise ValueError(f"entry {entry}: the database file is shorter than its index")
-            flat[k] = np.frombuffer(data, np.uint8)
-        return rows
+        return read_rows(self._layout, self._read, ids, self._path)
+
+    def _read(self, start: int, length: int) -> bytes:
+        return os.pread(self._fd, length, self._start + start)
 
     def close(self) -> None:
         os.close(self._fd)
 
 
 _IN_MEMORY_BYTES = 256 * 2**20
-"""Image datasets up to this size are read whole on first use: indexing memory is
-fastest (300 rows of 64 x 64, a tracker's last stage, take 0.2 ms against 0.9 ms of
-positioned reads)."""
+"""Sizes whose decoded images take up to this are read whole on first use: indexing
+memory is fastest (300 rows of 64 x 64, a tracker's last stage, take 0.2 ms against
+0.9 ms of positioned reads)."""
 
 
 def _row_source(database: GloveDatabase, size: int) -> _RowReader | NDArray[np.uint8]:
-    """Where the rows of one size come from: the whole dataset read into memory when it
-    is small or stored compressed, else positioned reads from the file (where the
-    system has ``os.pread``)."""
-    dataset = database._dataset(size)
-    offset = dataset.id.get_offset()
-    contiguous = dataset.chunks is None and dataset.compression is None and offset is not None
-    large = dataset.size > _IN_MEMORY_BYTES
-    if contiguous and large and hasattr(os, "pread"):
-        return _RowReader(database.path, int(offset), dataset.shape)
-    return np.asarray(dataset[()])
+    """Where the rows of one size come from: every image decoded into memory when they
+    are small or cannot be read row by row (format 1's compressed sizes), else
+    positioned reads from the file (where the system has ``os.pread``)."""
+    layout = database.row_layout(size)
+    if layout is not None and layout.file_offset is not None and hasattr(os, "pread"):
+        if (len(layout.offsets) - 1) * size * size > _IN_MEMORY_BYTES:
+            return _RowReader(database.path, layout)
+    return database.images(size)

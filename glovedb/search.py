@@ -28,22 +28,27 @@ Which distance
     which keeps such subsets rare.
 
 Resident layout
-    :func:`pack_tiny_images` stores each image as ``s * s / g`` uint16 codes, one per
-    group of ``g`` consecutive pixels (``code = sum label_i * 11 ** (g - 1 - i)``), and
-    its glove pixel count. Per query and size, a table holds the summed chamfer
-    distances of every code at every group position, so an entry costs ``s * s / g``
-    lookups instead of ``s * s``. With ``g = 4`` an 8x8 image is 16 lookups and 32
-    bytes (32 MB per million entries; table 0.9 MB, in L2). The scan runs in chunks on
-    a thread pool (the compiled kernel releases the GIL). The quantile of a strided
-    sample bounds the k smallest errors, so only a few thousand candidates are sorted;
-    ties are broken by the lower entry id.
+    The first stage scans images in the compact layout of :mod:`glovedb.packed_images`
+    (16 lookups and 32 bytes per 8x8 image). The scan runs in chunks on a thread pool
+    (the compiled kernel releases the GIL). The quantile of a strided sample bounds the
+    k smallest errors, so only a few thousand candidates are sorted; ties are broken by
+    the lower entry id.
+
+Distinct images
+    The first stage's source may instead be a
+    :class:`~glovedb.distinct_images.DistinctTinyImages`: each distinct image is scored
+    once and its error handed to all its entries. The stage's result is the same as
+    the full scan's (same entries, errors and order), at the cost of scanning the
+    distinct images only; :class:`glovedb.lookup.DatabaseIndex` uses it when images
+    repeat (see :mod:`glovedb.distinct_images`).
 
 Sources
-    Each size in the ``database`` mapping is a :class:`PackedTinyImages` (resident,
-    required for the first stage, which scans every entry), an ``(N, s, s) uint8``
-    array, or a :data:`RowLoader` ``ids -> (len(ids), s, s) uint8`` that the HDF5
-    reader can supply for the large sizes; the few rows a later stage needs are
-    scanned as plain labels (packing them would cost more than scanning them).
+    Each size in the ``database`` mapping is a :class:`PackedTinyImages` or, for the
+    first stage only, a :class:`~glovedb.distinct_images.DistinctTinyImages` (resident;
+    the first stage needs one of them), an ``(N, s, s) uint8`` array, or a
+    :data:`RowLoader` ``ids -> (len(ids), s, s) uint8`` that the HDF5 reader can supply
+    for the large sizes; the few rows a later stage needs are scanned as plain labels
+    (packing them would cost more than scanning them).
 """
 
 from __future__ import annotations
@@ -69,6 +74,8 @@ from glovedb.chamfer import (
     chamfer_maps,
     check_labels,
 )
+from glovedb.distinct_images import DistinctTinyImages
+from glovedb.packed_images import PackedTinyImages, code_table, pack_tiny_images
 from glovedb.rotations import weighted_rotation_average
 
 CoarseMaps: TypeAlias = Literal["cell_mean", "exact"]
@@ -77,9 +84,6 @@ COARSE_MAPS: tuple[CoarseMaps, ...] = ("cell_mean", "exact")
 RowLoader: TypeAlias = Callable[[NDArray[np.int64]], ArrayLike]
 """Loads the tiny images of the given entry ids (ascending, unique) as ``(m, s, s)``."""
 
-_NUM_LABELS = NUM_CLASSES + 1
-_GROUPS = (4, 2, 1)  # 11 ** g codes must fit uint16
-_MAX_TABLE_ENTRIES = 1 << 18  # 1 MB of float32 per query and size: stays in L2
 _MIN_ROWS_PER_CHUNK = 1 << 14
 _SAMPLE_SIZE = 1 << 14
 
@@ -92,45 +96,7 @@ class CascadeStage:
     k: int
 
 
-@dataclass(frozen=True)
-class PackedTinyImages:
-    """Tiny images of one size in the compact scan layout of :func:`pack_tiny_images`.
-
-    Attributes
-    ----------
-    codes : (N, s * s // group) uint16, C-contiguous
-        Code of each group of ``group`` consecutive pixels (row-major order).
-    glove_pixels : (N,) uint16
-        Number of non-background pixels per image.
-    size : int
-        Side length ``s`` in pixels.
-    group : int
-        Pixels per code: 1, 2 or 4.
-    """
-
-    codes: NDArray[np.uint16]
-    glove_pixels: NDArray[np.uint16]
-    size: int
-    group: int
-
-    def __post_init__(self) -> None:
-        if self.group not in _GROUPS or (self.size * self.size) % self.group:
-            raise ValueError(f"group: expected one of {_GROUPS} dividing s * s, got {self.group}")
-        positions = self.size * self.size // self.group
-        as_array("codes", self.codes, (None, positions), np.uint16)
-        as_array("glove_pixels", self.glove_pixels, (len(self.codes),), np.uint16)
-        if self.codes.dtype != np.uint16 or self.glove_pixels.dtype != np.uint16:
-            raise TypeError("codes, glove_pixels: expected uint16 arrays")
-        if not self.codes.flags.c_contiguous:
-            raise ValueError("codes: expected a C-contiguous array")
-
-    @property
-    def num_entries(self) -> int:
-        """Number of images ``N``."""
-        return len(self.codes)
-
-
-TinyImageSource: TypeAlias = PackedTinyImages | NDArray[np.uint8] | RowLoader
+TinyImageSource: TypeAlias = PackedTinyImages | DistinctTinyImages | NDArray[np.uint8] | RowLoader
 """The images of one size in ``cascade_search``'s ``database`` mapping."""
 
 
@@ -232,36 +198,6 @@ def check_cascade(
     return stages
 
 
-def pack_tiny_images(images: ArrayLike, *, group: int | None = None) -> PackedTinyImages:
-    """Convert label images to the compact scan layout.
-
-    Parameters
-    ----------
-    images : (N, s, s) uint8
-        Labels 0..10.
-    group : {1, 2, 4}, optional
-        Pixels per code. Default: the largest whose per-query table has at most 2**18
-        entries (4 for 8x8, 2 for 16x16 up to 64x64).
-
-    Returns
-    -------
-    PackedTinyImages
-    """
-    labels = check_labels("images", images, (None, None, None))
-    size = labels.shape[-1]
-    group = _default_group(size) if group is None else group
-    if group not in _GROUPS or (size * size) % group:
-        raise ValueError(f"group: expected one of {_GROUPS} dividing s * s, got {group}")
-    grouped = labels.reshape(len(labels), size * size // group, group)
-    codes = np.zeros(grouped.shape[:2], np.uint16)
-    for index in range(group):
-        codes *= _NUM_LABELS
-        codes += grouped[:, :, index]
-    flat = labels.reshape(len(labels), size * size)
-    glove_pixels = np.count_nonzero(flat, axis=1).astype(np.uint16)
-    return PackedTinyImages(codes=codes, glove_pixels=glove_pixels, size=size, group=group)
-
-
 def tiny_image_distances(
     query_maps: ArrayLike, packed: PackedTinyImages, *, workers: int | None = None
 ) -> NDArray[np.float32]:
@@ -299,9 +235,10 @@ def cascade_search(
     query_images : mapping of int to (s, s) uint8
         The query's tiny image for every size in the cascade. Each must have at least
         one glove pixel.
-    database : mapping of int to PackedTinyImages, (N, s, s) uint8 or RowLoader
+    database : mapping of int to PackedTinyImages, DistinctTinyImages, (N, s, s) uint8 or RowLoader
         Tiny images of all ``N`` entries per size. The first stage's size must be
-        in memory (packed, or an array that is packed on every call, which is slow).
+        in memory (packed, distinct, or an array that is packed on every call, which
+        is slow); distinct images serve the first stage only.
     cascade : str or sequence of CascadeStage
         E.g. ``"8:2000,16:300,64:3"``; checked by :func:`check_cascade`.
     workers : int, optional
@@ -336,11 +273,15 @@ def cascade_search(
             maps = cell_mean_maps(last_maps, stage.size)
         else:
             maps = chamfer_maps(_query_image(query_images, stage.size))
-        packed = _rows(database[stage.size], ids, stage.size, num_entries)
-        stage_errors = _scan(maps, packed, workers)
-        keep = _smallest(stage_errors, stage.k)
-        ranked_ids = keep if ids is None else ids[keep]
-        errors = stage_errors[keep]
+        source = database[stage.size]
+        if isinstance(source, DistinctTinyImages):  # the first stage (_num_entries)
+            image_errors = _scan(maps, source.images, workers)
+            ranked_ids, errors = _smallest_entries(source, image_errors, stage.k)
+        else:
+            stage_errors = _scan(maps, _rows(source, ids, stage.size, num_entries), workers)
+            keep = _smallest(stage_errors, stage.k)
+            ranked_ids = keep if ids is None else ids[keep]
+            errors = stage_errors[keep]
         ascending = np.argsort(ranked_ids)
         ids = ranked_ids[ascending]
         stage_ms.append(1000.0 * (time.perf_counter() - start))
@@ -413,26 +354,6 @@ def interpolate_pose(
     )
 
 
-def _default_group(size: int) -> int:
-    positions = size * size
-    return next(
-        g
-        for g in _GROUPS
-        if positions % g == 0 and positions // g * _NUM_LABELS**g <= _MAX_TABLE_ENTRIES
-    )
-
-
-def _lookup_table(maps: NDArray[np.float32], group: int) -> NDArray[np.float32]:
-    """``table[p, code]``: summed chamfer distances of the pixels of group ``p``."""
-    size = maps.shape[-1]
-    per_label = np.concatenate([np.zeros((1, size * size), np.float32), maps.reshape(10, -1)])
-    per_pixel = per_label.T.reshape(size * size // group, group, _NUM_LABELS)
-    table = per_pixel[:, 0]
-    for index in range(1, group):
-        table = (table[:, :, None] + per_pixel[:, index, None, :]).reshape(len(table), -1)
-    return np.ascontiguousarray(table)
-
-
 def _scan(
     query_maps: ArrayLike, rows: PackedTinyImages | NDArray[np.uint8], workers: int | None
 ) -> NDArray[np.float32]:
@@ -447,7 +368,7 @@ def _scan(
     if isinstance(rows, PackedTinyImages):
         size = rows.size
         maps = as_array("query_maps", query_maps, (NUM_CLASSES, size, size), np.float32)
-        table = _lookup_table(maps, rows.group)
+        table = code_table(maps, rows.group)
         codes, glove_pixels = rows.codes, rows.glove_pixels
         num_rows = len(codes)
 
@@ -504,6 +425,37 @@ def _smallest(errors: NDArray[np.float32], k: int) -> NDArray[np.int64]:
     return rows[np.lexsort((rows, errors[rows]))[:k]]
 
 
+def _smallest_entries(
+    distinct: DistinctTinyImages, image_errors: NDArray[np.float32], k: int
+) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+    """The ``k`` entries with the smallest errors, ascending by (error, entry id), and
+    their errors, from the errors of the distinct images: what :func:`_smallest` gives
+    on the errors of all entries.
+
+    The ``k`` best images hold at least ``k`` entries; those up to the one that
+    completes ``k`` entries, and every image tied with it, are expanded to entries.
+    """
+    k = min(k, distinct.num_entries)
+    if k == 0:
+        return np.empty(0, np.int64), np.empty(0, np.float32)
+    offsets = distinct.offsets
+    candidates = _smallest(image_errors, k)
+    covered = np.cumsum(offsets[candidates + 1] - offsets[candidates])
+    cut = image_errors[candidates[int(np.searchsorted(covered, k))]]
+    if len(candidates) < len(image_errors) and image_errors[candidates[-1]] <= cut:
+        images = np.flatnonzero(image_errors <= cut)  # ties beyond the candidates
+    else:
+        images = candidates[image_errors[candidates] <= cut]
+    starts = offsets[images]
+    lengths = offsets[images + 1] - starts
+    first_positions = np.cumsum(lengths) - lengths
+    positions = np.repeat(starts - first_positions, lengths) + np.arange(lengths.sum())
+    entry_ids = distinct.entry_ids[positions]
+    entry_errors = np.repeat(image_errors[images], lengths)
+    order = np.lexsort((entry_ids, entry_errors))[:k]
+    return entry_ids[order], entry_errors[order]
+
+
 def _query_image(query_images: Mapping[int, ArrayLike], size: int) -> NDArray[np.uint8]:
     if size not in query_images:
         raise ValueError(f"query_images: no tiny image of size {size}")
@@ -515,8 +467,19 @@ def _query_image(query_images: Mapping[int, ArrayLike], size: int) -> NDArray[np
 
 
 def _num_entries(database: Mapping[int, TinyImageSource], first_size: int) -> int:
+    """Entries in the database; checks that the first stage's images are in memory
+    and that distinct images (which have no rows by entry) serve only that stage."""
+    for size, source in database.items():
+        if isinstance(source, DistinctTinyImages):
+            if size != first_size:
+                raise ValueError(f"database[{size}]: distinct images serve the first stage only")
+            if source.images.size != size:
+                raise ValueError(f"database[{size}]: holds {source.images.size}x"
+                                 f"{source.images.size} images")  # fmt: skip
     counts = {
-        size: source.num_entries if isinstance(source, PackedTinyImages) else len(source)
+        size: source.num_entries
+        if isinstance(source, PackedTinyImages | DistinctTinyImages)
+        else len(source)
         for size, source in database.items()
         if not callable(source)
     }
@@ -536,6 +499,7 @@ def _rows(
     """The images of ``ids`` (ascending), or of all entries when ``ids`` is None:
     packed, or as ``(M, s * s)`` labels when loaded or sliced for a few ids."""
     name = f"database[{size}]"
+    assert not isinstance(source, DistinctTinyImages)  # _num_entries: first stage only
     if isinstance(source, PackedTinyImages):
         if source.size != size:
             raise ValueError(f"{name}: holds {source.size}x{source.size} images")
