@@ -63,7 +63,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fingertips._files import write_atomically
 from fingertips._tree_kernels import descend_depth_forest
 from fingertips.features import (
     intrinsics_array,
@@ -73,6 +72,7 @@ from fingertips.features import (
 from fingertips.heatmap import HEAT_PEAK_FEATURES, HeatmapNetwork, HeatmapStage
 from fingertips.trees import FeatureLookup, check_tree_table, descend, descend_matrix
 from fingertips.verify import PEAK_FEATURES, PeakVerifier
+from glovedb._files import write_atomically
 from glovedb._validate import as_array
 
 FORMAT_NAME = "glove-fingertip-forest"

@@ -25,10 +25,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from fingertips._files import write_atomically
 from fingertips.data import FingertipDataConfig, data_config_from_dict, generate_examples
 from fingertips.heatmap import CROP_HALF_M, PASSES, hand_centre, hand_crop
 from glovedb import __version__
+from glovedb._files import write_atomically
 from glovedb._validate import dataclass_from_table
 
 CROPS_FORMAT = "glove-fingertip-crops"

@@ -155,6 +155,7 @@ class GloveDatabase(Closing):
         self.path = Path(path)
         self._file = open_database_file(self.path)
         self.format_version = int(self._file.attrs["format_version"])
+        self._offsets: dict[int, NDArray[np.int64]] = {}  # format 2, checked on opening
         try:
             self._check()
         except Exception:
@@ -177,7 +178,7 @@ class GloveDatabase(Closing):
                 if shape != (entries, size, size):
                     raise ValueError(f"{self.path}: /tiny/{size} has shape {shape}")
             else:
-                self._row_offsets(size, entries)
+                self._offsets[size] = self._checked_offsets(size, entries)
         try:  # parsed now, so that a damaged file fails when opened, not mid-run
             dict(json.loads(file.attrs["settings_json"]))
         except (KeyError, ValueError, TypeError) as error:
@@ -260,7 +261,7 @@ class GloveDatabase(Closing):
         self._check_size(size)
         if self.format_version == 1:
             return np.asarray(self._file[f"tiny/{size}"][()])
-        offsets = self._row_offsets(size)
+        offsets = self._offsets[size]
         data = np.asarray(self._file[f"tiny/{size}/rows"][()])
         return _decoded(data, offsets[:-1], offsets[1:], size, None, str(self.path))
 
@@ -281,7 +282,7 @@ class GloveDatabase(Closing):
             return result
         rows = self._file[f"tiny/{size}/rows"]
         return read_rows(
-            RowLayout(size, self._row_offsets(size), True, _file_offset(rows)),
+            self._encoded_layout(size),
             lambda start, length: rows[start : start + length].tobytes(),
             ids,
             str(self.path),
@@ -297,10 +298,13 @@ class GloveDatabase(Closing):
                 return None
             offsets = np.arange(dataset.shape[0] + 1, dtype=np.int64) * (size * size)
             return RowLayout(size, offsets, False, _file_offset(dataset))
-        rows = self._file[f"tiny/{size}/rows"]
-        return RowLayout(size, self._row_offsets(size), True, _file_offset(rows))
+        return self._encoded_layout(size)
 
-    def _row_offsets(self, size: int, entries: int | None = None) -> NDArray[np.int64]:
+    def _encoded_layout(self, size: int) -> RowLayout:
+        rows = self._file[f"tiny/{size}/rows"]
+        return RowLayout(size, self._offsets[size], True, _file_offset(rows))
+
+    def _checked_offsets(self, size: int, entries: int) -> NDArray[np.int64]:
         """The checked ``(N + 1,)`` offsets of format 2's rows of one size."""
         group = self._file[f"tiny/{size}"]
         where = f"{self.path}: damaged database, /tiny/{size}"
@@ -310,8 +314,6 @@ class GloveDatabase(Closing):
         if len(datasets) != 2 or not all(isinstance(d, h5py.Dataset) for d in datasets):
             raise ValueError(f"{where} is not a group of rows and offsets")
         rows, offsets = datasets
-        if entries is None:
-            entries = len(self._file["entries/posture_id"])
         if (rows.dtype, rows.ndim, offsets.dtype, offsets.shape) != (
             np.uint8, 1, np.int64, (entries + 1,)
         ):  # fmt: skip

@@ -22,7 +22,11 @@ from numpy.typing import NDArray
 from glovedb._closing import Closing
 from glovedb._validate import check_choice
 from glovedb.database import GloveDatabase, RowLayout, read_rows
-from glovedb.distinct_images import DistinctTinyImages, distinct_tiny_images
+from glovedb.distinct_images import (
+    DistinctTinyImages,
+    distinct_image_count,
+    distinct_tiny_images,
+)
 from glovedb.search import (
     CascadeStage,
     CoarseMaps,
@@ -170,16 +174,17 @@ class DatabaseIndex(Closing):
         if size in self._first:
             return self._first[size]
         images = self._database.images(size)
-        if self.first_stage != "scan":
+        # Every image of the file is shown by an entry, tiled or not.
+        if self.first_stage == "distinct" or (
+            self.first_stage == "auto"
+            and distinct_image_count(images) <= _DISTINCT_AT_MOST * self.entries
+        ):
             tiled = self.entries != self.base_entries
-            distinct = distinct_tiny_images(
+            self._first[size] = distinct_tiny_images(
                 images,
                 image_of_entry=np.arange(self.entries) % self.base_entries if tiled else None,
             )
-            repeats = distinct.num_images <= _DISTINCT_AT_MOST * self.entries
-            if self.first_stage == "distinct" or repeats:
-                self._first[size] = distinct
-                return distinct
+            return self._first[size]
         if size not in self._packed:
             self._packed[size] = self._pack(images)
         self._first[size] = self._packed[size]

@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from glovedb import _mesh_kernels
+from glovedb._files import write_atomically
 from glovedb._validate import as_array
 from glovedb.cache import cache_folder, source_digest
 from glovedb.hand_model import N_BONES, N_JOINTS, Skeleton, forward_kinematics, make_skeleton
@@ -143,14 +144,15 @@ def cached_hand_mesh(
     mesh = make_hand_mesh(skeleton, spacing_m=spacing_m)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.npz")
-        np.savez(
-            partial,
-            rest_vertices_m=mesh.rest_vertices_m,
-            faces=mesh.faces,
-            weights=mesh.weights,
+        write_atomically(  # whole or absent, also with two processes at once
+            path,
+            lambda file: np.savez(
+                file,
+                rest_vertices_m=mesh.rest_vertices_m,
+                faces=mesh.faces,
+                weights=mesh.weights,
+            ),
         )
-        os.replace(partial, path)  # whole or absent, also with two processes at once
     except OSError:
         pass  # a read-only home: the next run generates it again
     return mesh

@@ -322,8 +322,8 @@ def run_crops(args: argparse.Namespace) -> int:
 
 
 def run_train_heatmap(args: argparse.Namespace) -> int:
-    from fingertips._files import write_atomically
     from fingertips.heatmap_data import load_crops, render_crops, require_torch
+    from glovedb._files import write_atomically
 
     out = _output_file(args.out, ".onnx", "a network file")
     heatmap, data = _heatmap_recipe(args.config)

@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from glovedb.distinct_images import DistinctTinyImages, _group_rows, distinct_tiny_images
+from glovedb.distinct_images import (
+    DistinctTinyImages,
+    _group_rows,
+    distinct_image_count,
+    distinct_tiny_images,
+)
 from glovedb.search import cascade_search, pack_tiny_images
 
 
@@ -27,6 +32,13 @@ def assert_same_first_stage(
 
 
 # --- grouping --------------------------------------------------------------------------
+
+
+def test_distinct_image_count_counts_what_grouping_finds() -> None:
+    rng = np.random.default_rng(4)
+    images = blob_images(rng, 50, 8, 3)[rng.integers(0, 50, 400)]
+    assert distinct_image_count(images) == distinct_tiny_images(images).num_images
+    assert distinct_image_count(images) == len(np.unique(images.reshape(400, -1), axis=0))
 
 
 def test_entries_are_grouped_by_identical_image() -> None:
