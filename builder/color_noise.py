@@ -63,26 +63,32 @@ class ColorNoiseConfig:
         return all(getattr(self, field.name) == 0 for field in fields(self))
 
 
+# The Kinect v1 color camera: a small, noisy Bayer sensor with slow auto exposure.
+_KINECT_V1 = ColorNoiseConfig(
+    pixel_sigma=3.0,
+    exposure_sigma_sequence_stops=0.25,
+    exposure_sigma_frame_stops=0.03,
+    white_balance_sigma_sequence=0.06,
+    white_balance_sigma_frame=0.01,
+    blur_sigma_px=0.8,
+)
+# The D435 color imager: sharper and less noisy at 848 x 480. The Azure Kinect's color
+# camera (preset time_of_flight) gets the same typical values.
+_REALSENSE_D435 = ColorNoiseConfig(
+    pixel_sigma=2.0,
+    exposure_sigma_sequence_stops=0.2,
+    exposure_sigma_frame_stops=0.02,
+    white_balance_sigma_sequence=0.05,
+    white_balance_sigma_frame=0.008,
+    blur_sigma_px=0.5,
+)
 _PRESETS: dict[str, ColorNoiseConfig] = {
     "none": ColorNoiseConfig(),
-    # The Kinect v1 color camera: a small, noisy Bayer sensor with slow auto exposure.
-    "kinect_v1": ColorNoiseConfig(
-        pixel_sigma=3.0,
-        exposure_sigma_sequence_stops=0.25,
-        exposure_sigma_frame_stops=0.03,
-        white_balance_sigma_sequence=0.06,
-        white_balance_sigma_frame=0.01,
-        blur_sigma_px=0.8,
-    ),
-    # The D435 color imager: sharper and less noisy at 848 x 480.
-    "realsense_d435": ColorNoiseConfig(
-        pixel_sigma=2.0,
-        exposure_sigma_sequence_stops=0.2,
-        exposure_sigma_frame_stops=0.02,
-        white_balance_sigma_sequence=0.05,
-        white_balance_sigma_frame=0.008,
-        blur_sigma_px=0.5,
-    ),
+    "kinect_v1": _KINECT_V1,
+    "realsense_d435": _REALSENSE_D435,
+    "structured_light": _KINECT_V1,
+    "active_stereo": _REALSENSE_D435,
+    "time_of_flight": _REALSENSE_D435,
 }
 
 

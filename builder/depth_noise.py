@@ -28,12 +28,18 @@ stereo camera would measure. Nothing in it is hand-specific. In order:
    (``dropout_blobs_per_mpx`` per million pixels on average).
 
 All randomness comes from the ``rng`` argument, so a seed reproduces the output.
+
+The presets ``kinect_v1`` and ``realsense_d435`` are this generic model. The presets
+``structured_light``, ``active_stereo`` and ``time_of_flight`` are sensor models, one per
+depth sensing principle, each documented with its sources in :mod:`builder.sensors`
+(they build on the pieces here). :func:`noise_preset` returns either kind and
+:func:`apply_depth_noise` runs either.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import Literal
+from typing import TYPE_CHECKING, Literal, TypeAlias
 
 import cv2
 import numpy as np
@@ -41,8 +47,32 @@ from numpy.typing import ArrayLike, NDArray
 
 from glovedb._validate import as_array, check_choice
 
-NoisePreset = Literal["none", "kinect_v1", "realsense_d435"]
-NOISE_PRESETS: tuple[NoisePreset, ...] = ("none", "kinect_v1", "realsense_d435")
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+    from builder.sensors import ActiveStereoConfig, StructuredLightConfig, TimeOfFlightConfig
+
+NoisePreset = Literal[
+    "none", "kinect_v1", "realsense_d435", "structured_light", "active_stereo", "time_of_flight"
+]
+NOISE_PRESETS: tuple[NoisePreset, ...] = (
+    "none",
+    "kinect_v1",
+    "realsense_d435",
+    "structured_light",
+    "active_stereo",
+    "time_of_flight",
+)
+
+
+def check_non_negative_fields(config: DataclassInstance) -> None:
+    """Raise ``ValueError`` naming the first field of ``config`` with a value (or a tuple
+    item) that is negative or not finite."""
+    for field in fields(config):
+        value = getattr(config, field.name)
+        values = value if isinstance(value, tuple) else (value,)
+        if any(not np.isfinite(v) or v < 0 for v in values):
+            raise ValueError(f"{field.name}: expected non-negative values, got {value}")
 
 
 @dataclass(frozen=True)
@@ -89,11 +119,7 @@ class DepthNoiseConfig:
     dropout_blob_radius_px: tuple[float, float] = (2.0, 6.0)
 
     def __post_init__(self) -> None:
-        for field in fields(self):
-            value = getattr(self, field.name)
-            values = value if isinstance(value, tuple) else (value,)
-            if any(not np.isfinite(v) or v < 0 for v in values):
-                raise ValueError(f"{field.name}: expected non-negative values, got {value}")
+        check_non_negative_fields(self)
         if self.edge_dropout_probability > 1:
             raise ValueError(
                 f"edge_dropout_probability: expected at most 1, got {self.edge_dropout_probability}"
@@ -152,9 +178,21 @@ _PRESETS: dict[str, DepthNoiseConfig] = {
 }
 
 
-def noise_preset(name: str) -> DepthNoiseConfig:
-    """The :class:`DepthNoiseConfig` of a preset in :data:`NOISE_PRESETS`."""
-    return _PRESETS[check_choice("noise", name, NOISE_PRESETS)]
+DepthSensorModel: TypeAlias = (
+    "DepthNoiseConfig | StructuredLightConfig | ActiveStereoConfig | TimeOfFlightConfig"
+)
+
+
+def noise_preset(name: str) -> DepthSensorModel:
+    """The model of a preset in :data:`NOISE_PRESETS`: a :class:`DepthNoiseConfig` or a
+    sensor model's config from :mod:`builder.sensors`."""
+    check_choice("noise", name, NOISE_PRESETS)
+    if name in _PRESETS:
+        return _PRESETS[name]
+    # Imported here: the sensor models build on this module's pieces.
+    from builder.sensors import SENSOR_PRESETS
+
+    return SENSOR_PRESETS[name]
 
 
 def depth_gradient(depth_m: ArrayLike, *, edge_jump_m: float) -> NDArray[np.float32]:
@@ -326,7 +364,7 @@ def dropout_blobs(
 def apply_depth_noise(
     depth_m: ArrayLike,
     intrinsics: ArrayLike,
-    config: DepthNoiseConfig,
+    config: DepthSensorModel,
     *,
     rng: np.random.Generator,
 ) -> NDArray[np.float32]:
@@ -337,19 +375,23 @@ def apply_depth_noise(
     depth_m : (H, W) float
         Clean depth in metres, 0 where nothing is measured.
     intrinsics : (4,) float
-        ``(fx, fy, cx, cy)`` in pixels (for the viewing angle).
-    config : DepthNoiseConfig
+        ``(fx, fy, cx, cy)`` of ``depth_m`` in pixels (viewing angles; the sensor models
+        also place their shadows with ``fx``).
+    config : DepthNoiseConfig or a sensor model's config
+        The generic model (module docstring) or one of :mod:`builder.sensors`.
     rng : numpy.random.Generator
         Source of all randomness.
 
     Returns
     -------
     (H, W) float32
-        Noisy depth in metres, 0 where missing; an unchanged copy when
-        ``config.is_identity``.
+        Noisy depth in metres, 0 where missing; an unchanged copy when ``config`` is a
+        :class:`DepthNoiseConfig` with ``is_identity``.
     """
     depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu", finite=True)
     camera = as_array("intrinsics", intrinsics, (4,), np.float64, kind="fiu", finite=True)
+    if not isinstance(config, DepthNoiseConfig):
+        return config.simulate(depth, camera, rng=rng)
     if config.is_identity:
         return depth.copy()
     measured = depth > 0
