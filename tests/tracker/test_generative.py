@@ -24,6 +24,12 @@ from tracker.generative.energy.data import data_residuals
 from tracker.generative.energy.fingertips import fingertip_residuals
 from tracker.generative.energy.limits import limit_residuals
 from tracker.generative.energy.prior import prior_residuals
+from tracker.generative.energy.reference import (
+    posture_information,
+    reference_basis,
+    reference_residuals,
+)
+from tracker.generative.energy.residuals import Residuals
 from tracker.generative.energy.silhouette import silhouette_residuals
 from tracker.generative.energy.temporal import temporal_residuals
 from tracker.generative.fit import FitSettings, fit_frame
@@ -172,6 +178,70 @@ def test_prior_limits_temporal_and_fingertip_jacobians(samples):
     )
 
 
+def test_reference_jacobian_and_weights_follow_what_the_data_observes(samples):
+    pose = _pose("power")
+    # Joint 0 is seen directly; joint 1 only together with a global translation, which
+    # explains it as well (the Schur complement removes it); the rest is unseen.
+    jacobian = np.zeros((3, N_PARAMS))
+    jacobian[0, 6 + 0] = 10.0
+    jacobian[1, 6 + 1] = 10.0
+    jacobian[1, 3] = 10.0
+    jacobian[2, 3] = 1e-3
+    information = posture_information([Residuals("data", np.zeros(3), jacobian)])
+    assert information[0, 0] == pytest.approx(100.0)
+    assert abs(information[1, 1]) < 1e-3
+    hidden = np.zeros(20, dtype=bool)
+    hidden[7] = True
+    basis = reference_basis(
+        pose.posture_rad, information, weight=2.0, observed_information=0.25,
+        hidden=hidden, hidden_weight=20.0,
+    )  # fmt: skip
+    # Effective weight per joint: the norm of its column in the weighted directions.
+    held = np.linalg.norm(
+        basis.weights[basis.robust, None] * basis.directions[basis.robust], axis=0
+    )
+    assert held[0] == pytest.approx(2.0 / np.sqrt(1 + 100.0 / 0.25), rel=1e-6)
+    np.testing.assert_allclose(held[1:], 2.0, rtol=1e-3)
+    assert basis.weights[~basis.robust] == pytest.approx([20.0])
+    np.testing.assert_array_equal(basis.directions[~basis.robust][0], np.eye(20)[7])
+    away = HandPose(
+        pose.posture_rad + 0.02 * np.cos(np.arange(20)), pose.rotation, pose.translation_m
+    )
+    _check_term(lambda p: reference_residuals(PosedHand(samples, p), basis, scale_rad=1e9), away)
+
+
+def test_the_reference_leaves_observed_fingers_free(samples):
+    """Index flexion is plain to see on an open hand: the reference hardly holds it,
+    and a start 12 degrees off is pulled back to the truth."""
+    truth = _pose("open")
+    observation = _observation(samples, truth)
+    settings = FitSettings(iterations=15)
+    start_posture = truth.posture_rad.copy()
+    index_mcp = JOINT_NAMES.index("index_mcp_flex")
+    start_posture[index_mcp] += np.radians(12.0)
+    start = HandPose(start_posture, truth.rotation, truth.translation_m)
+    terms = [
+        data_residuals(
+            PosedHand(samples, start), observation.points_m, observation.labels,
+            weight=settings.data_weight, huber_m=settings.data_huber_m, gate_m=settings.data_gate_m,
+        )[0],
+        silhouette_residuals(
+            PosedHand(samples, start), observation, weight=settings.silhouette_weight,
+            margin_px=settings.silhouette_margin_px, depth_margin_m=settings.depth_margin_m,
+            max_samples=settings.silhouette_samples,
+        )[0],
+    ]  # fmt: skip
+    basis = reference_basis(
+        start_posture, posture_information(terms), weight=settings.reference_weight,
+        observed_information=settings.observed_information,
+    )  # fmt: skip
+    held = np.linalg.norm(basis.weights[:, None] * basis.directions, axis=0)
+    assert held[index_mcp] < 0.25 * settings.reference_weight
+    fit = fit_frame(samples, observation, start, settings=settings, prior=load_posture_prior())
+    error = np.degrees(abs(fit.pose.posture_rad[index_mcp] - truth.posture_rad[index_mcp]))
+    assert error < 2.0
+
+
 def test_fingertips_without_targets_add_nothing(samples):
     hand = PosedHand(samples, _pose("power"))
     residuals = fingertip_residuals(hand, np.full((5, 3), np.nan), weight=300.0, deadband_m=0.01)
@@ -291,6 +361,7 @@ def test_directional_rows_are_the_projected_vertex_jacobian(samples):
         (lambda: FitSettings(data_weight=-1.0), "data_weight"),
         (lambda: FitSettings(iterations=0), "iterations"),
         (lambda: FitSettings(max_points=10), "max_points"),
+        (lambda: FitSettings(observed_information=0.0), "observed_information"),
     ],
 )
 def test_fit_settings_refuse_bad_values(make, message):

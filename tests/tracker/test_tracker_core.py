@@ -277,7 +277,7 @@ def test_a_warm_fit_that_leaves_the_hand_asks_the_lookup_again(open_pinch_power_
         Frame(index, rendering.color, rendering.depth_m, KINECT_V1)
         for index, rendering in enumerate(
             renderer.render(named_posture(name), rotation, translation)
-            for name in ("open", "power")  # the hand closes faster than a warm start follows
+            for name in ("open", "fist")  # the hand closes faster than a warm start follows
         )
     ]
     lookups, errors = {}, {}
@@ -292,8 +292,9 @@ def test_a_warm_fit_that_leaves_the_hand_asks_the_lookup_again(open_pinch_power_
             results = [tracker.track(frame) for frame in frames]
         lookups[relook] = len(calls)
         assert all(result.hand_found for result in results)
-        errors[relook] = np.degrees(np.abs(results[1].posture_rad - named_posture("power"))).mean()
+        errors[relook] = np.degrees(np.abs(results[1].posture_rad - named_posture("fist"))).mean()
     # The first frame always looks up; the second only when the warm fit sticks out.
     assert lookups == {0.03: 2, 1.0: 1}
-    # From the open hand the warm fit stays 17 deg from the fist; the lookup's start, 5.
-    assert errors[0.03] < 6.0 and errors[1.0] > 2 * errors[0.03]
+    # From the open hand the warm fit stays 32 deg from the fist; from the lookup's
+    # start (the database's power grasp, its nearest posture), 17.
+    assert errors[0.03] < 20.0 and errors[1.0] > 1.5 * errors[0.03]

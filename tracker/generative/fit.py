@@ -29,13 +29,21 @@ from numpy.typing import NDArray
 from glovedb.posture_prior import PosturePrior
 from glovedb.proportions import FACTOR_RANGE, N_PROPORTIONS, HandProportions
 from tracker.generative.energy.collision import collision_residuals
+from tracker.generative.energy.data import NAME as DATA
 from tracker.generative.energy.data import data_residuals
 from tracker.generative.energy.fingertips import fingertip_residuals
 from tracker.generative.energy.limits import limit_residuals
 from tracker.generative.energy.prior import prior_residuals
 from tracker.generative.energy.reference import NAME as REFERENCE
-from tracker.generative.energy.reference import hidden_joints, reference_residuals
+from tracker.generative.energy.reference import (
+    ReferenceBasis,
+    hidden_joints,
+    posture_information,
+    reference_basis,
+    reference_residuals,
+)
 from tracker.generative.energy.residuals import Residuals
+from tracker.generative.energy.silhouette import NAME as SILHOUETTE
 from tracker.generative.energy.silhouette import silhouette_residuals
 from tracker.generative.energy.temporal import temporal_residuals
 from tracker.generative.model import N_PARAMS, HandPose, HandSamples, PosedHand
@@ -97,9 +105,15 @@ class FitSettings:
     temporal_scale_m : float
         Keypoint motion beyond this costs less and less (Cauchy loss).
     reference_weight : float
-        Per radian of a joint angle's departure from the start's posture.
+        Per radian of departure from the start's posture along a posture direction
+        the data does not observe (:mod:`tracker.generative.energy.reference`).
     reference_scale_deg : float
         Departures beyond this cost less and less (Cauchy loss), degrees.
+    observed_information : float
+        Information of the data and silhouette terms about a posture direction
+        (their weighted energy per radian², global motion eliminated) at which the
+        reference weight along it is divided by sqrt(2); better observed directions
+        are held less.
     hidden_reference_weight : float
         Per radian, for joints whose finger an object hides at the start.
     fingertip_weight : float
@@ -134,6 +148,7 @@ class FitSettings:
     temporal_scale_m: float = 0.02
     reference_weight: float = 2.0
     reference_scale_deg: float = 10.0
+    observed_information: float = 0.01
     hidden_reference_weight: float = 20.0
     fingertip_weight: float = 300.0
     fingertip_deadband_m: float = 0.015
@@ -148,6 +163,10 @@ class FitSettings:
         if min(self.iterations, self.sample_spacing, self.silhouette_samples) < 1:
             raise ValueError(
                 "FitSettings: iterations, sample_spacing and silhouette_samples must be >= 1"
+            )
+        if self.observed_information <= 0:
+            raise ValueError(
+                f"FitSettings.observed_information: expected > 0, got {self.observed_information}"
             )
         if self.max_points < 30:
             raise ValueError(f"FitSettings.max_points: expected >= 30, got {self.max_points}")
@@ -214,8 +233,7 @@ def frame_energy(
     prior: PosturePrior,
     previous_keypoints_m: NDArray[np.float64] | None = None,
     tip_targets_m: NDArray[np.float64] | None = None,
-    reference_rad: NDArray[np.float64] | None = None,
-    hidden: NDArray[np.bool_] | None = None,
+    reference: ReferenceBasis | None = None,
     proportions: bool = False,
     proportion_jacobian: NDArray[np.float64] | None = None,
 ) -> tuple[list[Residuals], dict[str, float], PosedHand]:
@@ -253,14 +271,10 @@ def frame_energy(
                 hand, previous_keypoints_m, weight=s.temporal_weight, scale_m=s.temporal_scale_m
             )
         )
-    if reference_rad is not None and s.reference_weight > 0:
+    if reference is not None:
         terms.append(
-            reference_residuals(
-                hand, reference_rad, weight=s.reference_weight,
-                scale_rad=np.radians(s.reference_scale_deg), hidden=hidden,
-                hidden_weight=s.hidden_reference_weight,
-            )
-        )  # fmt: skip
+            reference_residuals(hand, reference, scale_rad=np.radians(s.reference_scale_deg))
+        )
     if tip_targets_m is not None and s.fingertip_weight > 0:
         terms.append(
             fingertip_residuals(
@@ -327,18 +341,18 @@ def fit_frame(
     flexion = np.degrees(start.posture_rad[FLEXION_JOINTS].reshape(5, 3).sum(axis=1))
     extended = (flexion < settings.extended_finger_deg).astype(np.float64)
     start_hand = PosedHand(samples, start)
+    hidden = hidden_joints(
+        start_hand,
+        observation,
+        margin_px=settings.silhouette_margin_px + HIDDEN_EDGE_PX,
+        depth_margin_m=settings.depth_margin_m,
+    )
     kwargs = {
         "settings": settings,
         "prior": prior,
         "previous_keypoints_m": previous_keypoints_m,
         "tip_targets_m": tip_targets_m,
-        "reference_rad": start.posture_rad,
-        "hidden": hidden_joints(
-            start_hand,
-            observation,
-            margin_px=settings.silhouette_margin_px + HIDDEN_EDGE_PX,
-            depth_margin_m=settings.depth_margin_m,
-        ),
+        "reference": None,  # set at the first evaluation, which is at the start
         "proportions": estimate_proportions,
         # The proportions' derivatives change little over one frame's solve: computed
         # once at the start for all samples, they serve every iteration.
@@ -352,6 +366,17 @@ def fit_frame(
 
     def evaluate(state: _State) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         terms, quality, hand = frame_energy(state.samples, state.pose, observation, **kwargs)  # type: ignore[arg-type]
+        if kwargs["reference"] is None and settings.reference_weight > 0:
+            observed = [t for t in terms if t.name in (DATA, SILHOUETTE)]
+            basis = reference_basis(
+                start.posture_rad, posture_information(observed),
+                weight=settings.reference_weight,
+                observed_information=settings.observed_information, hidden=hidden,
+                hidden_weight=settings.hidden_reference_weight,
+            )  # fmt: skip
+            kwargs["reference"] = basis
+            scale_rad = np.radians(settings.reference_scale_deg)
+            terms.append(reference_residuals(hand, basis, scale_rad=scale_rad))
         residual = np.concatenate([t.values for t in terms])
         jacobian = np.concatenate([t.jacobian for t in terms])
         if estimate_proportions:
@@ -406,6 +431,6 @@ def fit_frame(
         outside=quality["outside"],
         rms_m=quality["rms_m"],
         iterations=result.iterations,
-        hidden=kwargs["hidden"],  # type: ignore[arg-type]
+        hidden=hidden,
         proportion_information=information_after,
     )

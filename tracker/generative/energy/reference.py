@@ -1,14 +1,28 @@
-"""Reference posture: joints the data does not see keep the start's angles.
+"""Reference posture: posture directions the data does not observe keep the start's angles.
 
 From the camera many joint angles are barely observed: the curled fingers of a fist
-seen from the back, a finger behind the palm. Their angles move freely within the
-sensor's noise, and the posture prior alone pulls them toward the mean posture. This
-term keeps them near the start's posture: the previous frame's solution while
-tracking, or the database's posture for a start from the lookup. It is weak and
-robust (Cauchy loss of scale ``scale_rad``), so that an angle the data does see moves
-as far as the data says: it is not the old pull toward the looked-up posture that
-kept postures outside the database wrong. Hypotheses are compared by their energy
-without this term (:func:`tracker.generative.fit.fit_frame`).
+seen from the back, a finger behind the palm, the distal joint of a finger whose
+middle joint explains the same points. Their angles move freely within the sensor's
+noise, and the posture prior alone pulls them toward the mean posture. This term
+keeps them near the start's posture: the previous frame's solution while tracking, or
+the database's posture for a start from the lookup. It is not the old pull toward
+the looked-up posture that kept postures outside the database wrong: it acts only
+where the data is silent.
+
+"Where the data is silent" is measured at the start of each frame's fit
+(:func:`posture_information`): the Gauss-Newton information ``J^T J`` of the data and
+silhouette residuals about the 20 joint angles, with the 6 global unknowns
+eliminated (Schur complement: a posture change that a small hand motion explains
+equally well is not observed). Its eigenvectors ``v_k`` with eigenvalues
+``lambda_k`` are the posture directions and how well the data sees each; the
+reference holds direction ``k`` with the weight (:func:`reference_basis`)::
+
+    w_k = reference_weight / sqrt(1 + lambda_k / observed_information)
+
+so a direction the data sees well (``lambda_k >> observed_information``) is free, and
+one it does not see keeps the start's value. Each row is robust (Cauchy loss of scale
+``scale_rad``), so a large, well-founded change is not held back. Hypotheses are
+compared by their energy without this term (:func:`tracker.generative.fit.fit_frame`).
 
 Joints whose finger an object hides (:func:`hidden_joints`) are held firmly instead
 (``hidden_weight``, no saturation): behind the object nothing is observed, and
@@ -16,6 +30,9 @@ without it the posture prior would curl the hidden fingers a little more every f
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,6 +43,29 @@ from tracker.generative.model import MOVES, N_PARAMS, PosedHand
 from tracker.generative.observation import Observation, look_up
 
 NAME = "reference"
+_GLOBAL = N_PARAMS - N_JOINTS  # the pose step's rotation and translation come first
+
+
+@dataclass(frozen=True)
+class ReferenceBasis:
+    """The posture the reference term holds, along which directions and how firmly.
+
+    Attributes
+    ----------
+    posture_rad : (20,) float64
+        The start's joint angles.
+    directions : (K, 20) float64
+        Unit posture directions (rows).
+    weights : (K,) float64
+        Per radian along each direction.
+    robust : (K,) bool
+        Rows with the Cauchy loss; the others are plain squares (hidden joints).
+    """
+
+    posture_rad: NDArray[np.float64]
+    directions: NDArray[np.float64]
+    weights: NDArray[np.float64]
+    robust: NDArray[np.bool_]
 
 
 def hidden_joints(
@@ -52,34 +92,83 @@ def hidden_joints(
     return np.asarray((MOVES * hidden_bone).any(axis=1), dtype=bool)
 
 
-def reference_residuals(
-    hand: PosedHand,
-    reference_rad: NDArray[np.float64],
+def posture_information(terms: Sequence[Residuals]) -> NDArray[np.float64]:
+    """``(20, 20)`` information of residuals about the joint angles, per radian²,
+    with the 6 global unknowns eliminated (Schur complement of ``J^T J``).
+
+    Parameters
+    ----------
+    terms : sequence of Residuals
+        Their Jacobians ``(M, 26)`` are stacked.
+    """
+    jacobian = np.concatenate([np.zeros((0, N_PARAMS))] + [t.jacobian for t in terms])
+    normal = jacobian.T @ jacobian
+    pose_block = normal[:_GLOBAL, :_GLOBAL] + 1e-12 * np.eye(_GLOBAL)
+    cross = normal[:_GLOBAL, _GLOBAL:]
+    information = normal[_GLOBAL:, _GLOBAL:] - cross.T @ np.linalg.solve(pose_block, cross)
+    return np.asarray(0.5 * (information + information.T), dtype=np.float64)
+
+
+def reference_basis(
+    posture_rad: NDArray[np.float64],
+    information: NDArray[np.float64],
     *,
     weight: float,
-    scale_rad: float,
+    observed_information: float,
     hidden: NDArray[np.bool_] | None = None,
     hidden_weight: float = 0.0,
-) -> Residuals:
-    """``(20,)`` residuals ``weight * w_j * (theta_j - reference_j)`` with the Cauchy
-    weights ``w_j = 1 / sqrt(1 + (d_j / scale_rad)**2)`` (IRLS; their derivative is
-    left out of the Jacobian).
+) -> ReferenceBasis:
+    """The directions and weights of the reference term (module docstring).
+
+    Parameters
+    ----------
+    posture_rad : (20,) float
+        The posture to hold.
+    information : (20, 20) float
+        From :func:`posture_information`, per radian².
+    weight : float
+        Per radian along a direction the data does not see.
+    observed_information : float
+        Information (per radian², in the residuals' units) at which a direction's
+        weight is divided by ``sqrt(2)``; must be > 0.
+    hidden : (20,) bool, optional
+        Joints held with ``hidden_weight`` per radian in addition, without the
+        Cauchy loss.
+    hidden_weight : float
+
+    Returns
+    -------
+    ReferenceBasis
+    """
+    eigenvalues, eigenvectors = np.linalg.eigh(np.asarray(information, dtype=np.float64))
+    weights = weight / np.sqrt(1.0 + np.maximum(eigenvalues, 0.0) / observed_information)
+    directions = eigenvectors.T
+    robust = np.ones(N_JOINTS, dtype=bool)
+    if hidden is not None and hidden.any() and hidden_weight > 0:
+        held = np.flatnonzero(hidden)
+        directions = np.vstack([directions, np.eye(N_JOINTS)[held]])
+        weights = np.r_[weights, np.full(len(held), hidden_weight)]
+        robust = np.r_[robust, np.zeros(len(held), dtype=bool)]
+    return ReferenceBasis(
+        np.asarray(posture_rad, dtype=np.float64).copy(), directions, weights, robust
+    )
+
+
+def reference_residuals(hand: PosedHand, basis: ReferenceBasis, *, scale_rad: float) -> Residuals:
+    """``(K,)`` residuals ``w_k c_k v_k . (theta - reference)``, with the Cauchy
+    weights ``c_k = 1 / sqrt(1 + (d_k / scale_rad)**2)`` of the departure ``d_k`` on
+    the robust rows (1 on the others; IRLS: their derivative is left out of the
+    Jacobian).
 
     Parameters
     ----------
     hand : PosedHand
-    reference_rad : (20,) float64
-    weight : float
-        Per radian.
+    basis : ReferenceBasis
     scale_rad : float
-    hidden : (20,) bool, optional
-        Joints held with ``hidden_weight`` per radian instead, without saturation.
-    hidden_weight : float
     """
-    departure = hand.pose.posture_rad - reference_rad
-    rows = weight / np.sqrt(1.0 + (departure / scale_rad) ** 2)
-    if hidden is not None:
-        rows = np.where(hidden, hidden_weight, rows)
-    jacobian = np.zeros((N_JOINTS, N_PARAMS))
-    jacobian[np.arange(N_JOINTS), 6 + np.arange(N_JOINTS)] = rows
+    departure = basis.directions @ (hand.pose.posture_rad - basis.posture_rad)
+    cauchy = np.where(basis.robust, 1.0 / np.sqrt(1.0 + (departure / scale_rad) ** 2), 1.0)
+    rows = basis.weights * cauchy
+    jacobian = np.zeros((len(rows), N_PARAMS))
+    jacobian[:, _GLOBAL:] = rows[:, None] * basis.directions
     return Residuals(NAME, rows * departure, jacobian)
