@@ -29,6 +29,7 @@ from fingertips.heatmap import (
     HeatmapStage,
     heatmap_peaks,
 )
+from fingertips.segmentation import SEGMENTATION_METHODS, SegmentationMethod, segment_hand
 from fingertips.verify import peak_features, verify_peaks
 from fingertips.voting import (
     DEFAULT_VOTING,
@@ -38,7 +39,7 @@ from fingertips.voting import (
     cast_votes,
     find_peaks,
 )
-from glovedb._validate import as_array
+from glovedb._validate import as_array, check_choice
 
 
 @dataclass(frozen=True)
@@ -112,6 +113,11 @@ class DetectorConfig:
         probable heat peak, are added to the detections; 0 turns the stage off (and is
         the only value allowed for a model without one). The stage also needs
         ``min_tip_probability`` > 0.
+    segmentation : {"band", "surface"}
+        How the hand's pixels are found (:func:`hand_depth`): ``"band"``, the depth
+        within ``depth_band_m`` behind the nearest surface; ``"surface"``, bare-hand
+        segmentation (:func:`fingertips.segmentation.segment_hand`: support planes
+        removed, the nearest connected surface, the forearm cut), then the band.
     voting : VotingConfig
     """
 
@@ -122,9 +128,11 @@ class DetectorConfig:
     max_pixels: int = 0
     min_tip_probability: float = 0.0
     heatmap_min_probability: float = 0.0
+    segmentation: SegmentationMethod = "band"
     voting: VotingConfig = DEFAULT_VOTING
 
     def __post_init__(self) -> None:
+        check_choice("segmentation", self.segmentation, SEGMENTATION_METHODS)
         if not 0 < self.c_thr < math.inf:
             raise ValueError(f"c_thr: expected a positive, finite threshold, got {self.c_thr}")
         if self.stride < 1:
@@ -187,9 +195,14 @@ def model_detector_config(model: FingertipForest) -> DetectorConfig:
 
 
 def hand_depth(
-    depth_m: ArrayLike, model: FingertipForest, *, depth_band_m: float = math.inf
+    depth_m: ArrayLike,
+    model: FingertipForest,
+    *,
+    depth_band_m: float = math.inf,
+    segmentation: SegmentationMethod = "band",
+    intrinsics: ArrayLike | None = None,
 ) -> NDArray[np.float32]:
-    """Depth restricted to the forest's working range and the band behind the nearest surface.
+    """Depth restricted to the forest's working range and to the hand.
 
     Parameters
     ----------
@@ -198,6 +211,10 @@ def hand_depth(
     model : FingertipForest
     depth_band_m : float
         See :class:`DetectorConfig`.
+    segmentation : {"band", "surface"}
+        See :class:`DetectorConfig`.
+    intrinsics : (4,) float, optional
+        ``(fx, fy, cx, cy)`` in pixels; needed by ``"surface"``.
 
     Returns
     -------
@@ -206,6 +223,11 @@ def hand_depth(
     """
     near, far = model.depth_range_m
     masked = mask_depth_range(depth_m, near_m=near, far_m=far)
+    if check_choice("segmentation", segmentation, SEGMENTATION_METHODS) == "surface":
+        if intrinsics is None:
+            raise ValueError("intrinsics: needed by the surface segmentation")
+        hand = segment_hand(masked, intrinsics).mask
+        masked = np.where(hand, masked, np.float32(0.0))
     return nearest_band(masked, band_m=depth_band_m)
 
 
@@ -246,7 +268,13 @@ def _frame_votes(
     from (:func:`~fingertips.features.probe_image`, made once per frame) and
     that hand depth (:func:`hand_depth`)."""
     depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
-    masked = hand_depth(depth, model, depth_band_m=config.depth_band_m)
+    masked = hand_depth(
+        depth,
+        model,
+        depth_band_m=config.depth_band_m,
+        segmentation=config.segmentation,
+        intrinsics=camera,
+    )
     stride = config.stride
     if config.pixel_spacing_m > 0:
         stride = stride_for_spacing(masked, float(camera[0]), spacing_m=config.pixel_spacing_m)
@@ -334,8 +362,10 @@ def verified_candidates(
         raise ValueError("model: has no peak verifier (a [verifier] table)")
     camera = intrinsics_array(intrinsics)
     candidates, features, masked = _candidates(depth_m, camera, model, config)
-    same_cut = np.allclose(model.depth_range_m, HAND_DEPTH_RANGE_M, rtol=1e-6) and (
-        config.depth_band_m == HAND_BAND_M
+    same_cut = (
+        np.allclose(model.depth_range_m, HAND_DEPTH_RANGE_M, rtol=1e-6)
+        and config.depth_band_m == HAND_BAND_M
+        and config.segmentation == "band"
     )
     return candidates, verify_peaks(model.verifier, features), masked if same_cut else None
 
