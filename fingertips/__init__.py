@@ -11,8 +11,10 @@ The whole detector lives here (docs/fingertips.md):
   model file), :mod:`~fingertips.trees`, :mod:`~fingertips.voting`,
   :mod:`~fingertips.verify`, :mod:`~fingertips.heatmap`, :mod:`~fingertips.detect`,
   :mod:`~fingertips.assignment`, :mod:`~fingertips.pose_guess`,
-  :mod:`~fingertips.detector`, :mod:`~fingertips.depth_input`,
-  :mod:`~fingertips.evaluation`, :mod:`~fingertips.heatmap_evaluation` and
+  :mod:`~fingertips.segmentation`, :mod:`~fingertips.detector`, :mod:`~fingertips.depth_input`,
+  :mod:`~fingertips.evaluation`, :mod:`~fingertips.miss_causes`,
+  :mod:`~fingertips.heatmap_evaluation`, :mod:`~fingertips.geodesic` (candidates
+  without learning) with :mod:`~fingertips.geodesic_evaluation`, and
   :mod:`~fingertips.pictures`;
 - training, which renders with ``builder`` and fits with scikit-learn (and PyTorch for
   the network): :mod:`~fingertips.data`, :mod:`~fingertips.training`,

@@ -10,9 +10,15 @@ per frame, holding ``frame`` and either
   fingertips at 4, 8, 12, 16, 20, as in ``groundtruth.jsonl`` (a frame with
   ``hand_visible`` false has no fingertips).
 
+Where the folder also has ``groundtruth.jsonl`` (rendered folders), its 21
+``keypoints_3d_m`` per frame come along: the miss causes use them
+(:mod:`fingertips.miss_causes`).
+
 Detections are matched to annotated fingertips one-to-one regardless of finger name
 (the detector does not know fingers before assignment), maximising the number of
-pairs within the distance gate.
+pairs within the distance gate. Each annotated tip that no detection matches is given
+one cause (:func:`fingertips.miss_causes.tip_causes`), and the metrics count the
+misses by cause.
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -37,13 +44,25 @@ from fingertips.detect import (
     DetectorConfig,
     detect_fingertips,
     detection_points,
+    hand_depth,
 )
 from fingertips.detector import FingertipDetector
 from fingertips.forest import FingertipForest
+from fingertips.miss_causes import (
+    DEFAULT_MISS_CAUSE_PARAMS,
+    MISS_CAUSES,
+    MissCause,
+    MissCauseParams,
+    tip_causes,
+)
 from glovedb._validate import as_array
 
 MEDIAPIPE_TIPS = (4, 8, 12, 16, 20)
 """Indices of the thumb, index, middle, ring and little fingertips among 21 keypoints."""
+
+TipCauses = Sequence[Sequence[MissCause | None]]
+"""Per frame, per annotated tip (thumb to little) its miss cause; None where not
+annotated (:func:`annotated_tip_causes`)."""
 
 FrameProgress = Callable[[Iterable[NDArray[np.float32]]], Iterable[NDArray[np.float32]]]
 """Wraps the iterable of depth frames to show progress (e.g. ``tqdm.tqdm``)."""
@@ -65,6 +84,10 @@ class AnnotatedDepth:
         Fingertips in the image (pixels); NaN if not annotated.
     frames : (N,) int64
         Frame numbers.
+    keypoints_m : (N, 21, 3) float64 or None
+        The hand's keypoints (MediaPipe order, camera frame, metres) where the folder
+        gives them (rendered folders); NaN for a frame without; None when no frame has
+        them.
     """
 
     depth_m: NDArray[np.float32]
@@ -72,6 +95,40 @@ class AnnotatedDepth:
     tips_m: NDArray[np.float64]
     tips_px: NDArray[np.float64]
     frames: NDArray[np.int64]
+    keypoints_m: NDArray[np.float64] | None = None
+
+
+@dataclass(frozen=True)
+class MissCauseCounts:
+    """Missed annotated tips counted by cause (:mod:`fingertips.miss_causes`).
+
+    Attributes
+    ----------
+    border, segmentation, distance, merged, curled, other : int
+        Misses per cause; they add up to :attr:`total`.
+    """
+
+    border: int = 0
+    segmentation: int = 0
+    distance: int = 0
+    merged: int = 0
+    curled: int = 0
+    other: int = 0
+
+    @property
+    def total(self) -> int:
+        """All misses."""
+        return sum(self.as_dict().values())
+
+    def as_dict(self) -> dict[str, int]:
+        """The counts as a JSON-ready dict, in the rule's order."""
+        return {cause: getattr(self, cause) for cause in MISS_CAUSES}
+
+    @classmethod
+    def of(cls, causes: Iterable[MissCause | None]) -> MissCauseCounts:
+        """Count the causes (None, a tip that is not annotated, is not counted)."""
+        listed = list(causes)
+        return cls(**{cause: listed.count(cause) for cause in MISS_CAUSES})
 
 
 @dataclass(frozen=True)
@@ -94,6 +151,9 @@ class FingertipMetrics:
         without a distance gate (each frame pairs min(detections, tips) of them).
     ms_per_frame : float
         Mean detection time per frame in milliseconds (NaN when not measured).
+    missed_15mm, missed_10px : MissCauseCounts or None
+        The annotated tips no detection matches within 15 mm (3D) or 10 px, by cause;
+        None when the causes were not given.
     """
 
     frames: int
@@ -106,9 +166,11 @@ class FingertipMetrics:
     recall_10px: float
     error_2d_px_ungated: float = math.nan
     ms_per_frame: float = math.nan
+    missed_15mm: MissCauseCounts | None = None
+    missed_10px: MissCauseCounts | None = None
 
-    def as_dict(self) -> dict[str, float | int]:
-        """The metrics as a JSON-ready dict."""
+    def as_dict(self) -> dict[str, Any]:
+        """The metrics as a JSON-ready dict (the miss counts as nested dicts)."""
         return asdict(self)
 
 
@@ -151,6 +213,44 @@ def _tips_of_record(record: dict) -> tuple[NDArray[np.float64], NDArray[np.float
     return tips_m, tips_px
 
 
+def _keypoints_of_record(record: dict) -> NDArray[np.float64]:
+    """The 21 ``keypoints_3d_m`` of a record, NaN when it has none or no visible hand."""
+    if "keypoints_3d_m" in record and record.get("hand_visible", True):
+        return _coordinates("keypoints_3d_m", record["keypoints_3d_m"], (21, 3))
+    return np.full((21, 3), np.nan)
+
+
+def _read_jsonl(path: Path) -> Iterable[tuple[int, dict]]:
+    """``(line number, record)`` of every non-empty line; ValueError names FILE:LINE."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as error:
+        raise ValueError(f"{path}: not UTF-8 text (byte {error.start})") from error
+    for number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError as error:
+            raise ValueError(f"{path}:{number}: not an annotation record ({error!r})") from error
+        if not isinstance(record, dict):
+            raise ValueError(f"{path}:{number}: not an annotation record (expected an object)")
+        yield number, record
+
+
+def _groundtruth_keypoints(path: Path) -> dict[int, NDArray[np.float64]]:
+    """Frame number to its 21 keypoints (NaN without a visible hand) of ``groundtruth.jsonl``."""
+    keypoints = {}
+    for number, record in _read_jsonl(path):
+        try:
+            keypoints[_frame_number(record["frame"])] = _keypoints_of_record(record)
+        except (KeyError, TypeError) as error:
+            raise ValueError(f"{path}:{number}: not a ground-truth record ({error!r})") from error
+        except ValueError as error:
+            raise ValueError(f"{path}:{number}: {error}") from error
+    return keypoints
+
+
 def _frame_number(value: object) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise ValueError(f"frame: expected a whole number >= 0, got {value!r}")
@@ -173,33 +273,28 @@ def read_annotated_depth(
     Returns
     -------
     AnnotatedDepth
-        The annotated frames, in file order.
+        The annotated frames, in file order; with the keypoints of the annotation
+        records, or else of the folder's ``groundtruth.jsonl`` if there is one.
 
     Raises
     ------
     ValueError
-        If a file is missing, an annotation line is malformed, there are no annotated
-        frames, or a depth image is not a 16-bit PNG of the size ``intrinsic.json``
-        gives.
+        If a file is missing, an annotation line (or a ``groundtruth.jsonl`` line read
+        for its keypoints) is malformed, there are no annotated frames, or a depth
+        image is not a 16-bit PNG of the size ``intrinsic.json`` gives.
     """
     root = Path(folder)
     path = root / annotations
     if not path.is_file() or not (root / "intrinsic.json").is_file():
         raise ValueError(f"{root}: expected intrinsic.json and {annotations}")
-    frames, tips_m, tips_px = [], [], []
+    frames, tips_m, tips_px, keypoints = [], [], [], []
     seen: set[int] = set()
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as error:
-        raise ValueError(f"{path}: not UTF-8 text (byte {error.start})") from error
-    for number, line in enumerate(text.splitlines(), start=1):
-        if not line.strip():
-            continue
+    for number, record in _read_jsonl(path):
         try:
-            record = json.loads(line)
             frame = _frame_number(record["frame"])
             frame_m, frame_px = _tips_of_record(record)
-        except (json.JSONDecodeError, KeyError, TypeError, AttributeError) as error:
+            keypoints.append(_keypoints_of_record(record))
+        except (KeyError, TypeError, AttributeError) as error:
             raise ValueError(f"{path}:{number}: not an annotation record ({error!r})") from error
         except ValueError as error:
             raise ValueError(f"{path}:{number}: {error}") from error
@@ -211,6 +306,10 @@ def read_annotated_depth(
         tips_px.append(frame_px)
     if not frames:
         raise ValueError(f"{path}: no annotated frames")
+    truth = root / "groundtruth.jsonl"
+    if np.all(np.isnan(keypoints)) and truth.is_file() and truth != path:
+        by_frame = _groundtruth_keypoints(truth)
+        keypoints = [by_frame.get(frame, np.full((21, 3), np.nan)) for frame in frames]
     intrinsics, size = read_intrinsics(root)
     sequence = DepthSequence(root, intrinsics, size, read_depth_scale(root), tuple(frames))
     return AnnotatedDepth(
@@ -219,6 +318,7 @@ def read_annotated_depth(
         tips_m=np.stack(tips_m),
         tips_px=np.stack(tips_px),
         frames=np.array(frames, dtype=np.int64),
+        keypoints_m=None if np.all(np.isnan(keypoints)) else np.stack(keypoints),
     )
 
 
@@ -290,6 +390,7 @@ def fingertip_metrics(
     gate_3d_m: float = 0.015,
     gate_2d_px: float = 10.0,
     ms_per_frame: float = math.nan,
+    causes: TipCauses | None = None,
 ) -> FingertipMetrics:
     """Score per-frame detections against annotated fingertips.
 
@@ -305,6 +406,9 @@ def fingertip_metrics(
         Match gates in 3D (metres) and 2D (pixels).
     ms_per_frame : float
         Detection time to report with the scores (from :func:`run_detector`).
+    causes : sequence of sequences of (str or None), optional
+        Per frame, each tip's miss cause (:func:`annotated_tip_causes`); given, the
+        misses at each gate are counted by cause.
 
     Returns
     -------
@@ -312,13 +416,21 @@ def fingertip_metrics(
     """
     if not len(detections) == tips_m.shape[0] == tips_px.shape[0]:
         raise ValueError("detections, tips_m, tips_px: expected one entry per frame each")
+    if causes is not None and not (
+        len(causes) == len(detections) and all(len(c) == tips_m.shape[1] for c in causes)
+    ):
+        raise ValueError("causes: expected one cause per annotated tip slot of every frame")
     if np.any(np.all(np.isfinite(tips_m), axis=2) != np.all(np.isfinite(tips_px), axis=2)):
         raise ValueError("tips_m, tips_px: every tip needs both positions or neither")
     n_det = n_tip = matched_3d = matched_2d = 0
     errors_3d: list[float] = []
     errors_2d: list[float] = []
     errors_ungated: list[float] = []
-    for frame_dets, frame_m, frame_px in zip(detections, tips_m, tips_px, strict=True):
+    missed_3d: list[MissCause | None] = []
+    missed_2d: list[MissCause | None] = []
+    for k, (frame_dets, frame_m, frame_px) in enumerate(
+        zip(detections, tips_m, tips_px, strict=True)
+    ):
         annotated = np.all(np.isfinite(frame_m), axis=1)
         xyz = detection_points(frame_dets)
         uv = np.array([[d.u_px, d.v_px] for d in frame_dets]).reshape(-1, 2)
@@ -330,7 +442,13 @@ def fingertip_metrics(
         n_det += len(frame_dets)
         n_tip += int(annotated.sum())
         matched_3d += rows.size
-        matched_2d += int(match_frame_2d(uv, frame_px, gate_px=gate_2d_px)[0].sum())
+        found_2d = match_frame_2d(uv, frame_px, gate_px=gate_2d_px)[0]
+        matched_2d += int(found_2d.sum())
+        if causes is not None:
+            found_3d = np.zeros(annotated.size, dtype=bool)
+            found_3d[np.flatnonzero(annotated)[cols]] = True
+            missed_3d.extend(causes[k][t] for t in np.flatnonzero(annotated & ~found_3d).tolist())
+            missed_2d.extend(causes[k][t] for t in np.flatnonzero(annotated & ~found_2d).tolist())
         if distance_2d.size:
             rows_all, cols_all = linear_sum_assignment(distance_2d)
             errors_ungated.extend(distance_2d[rows_all, cols_all])
@@ -345,7 +463,60 @@ def fingertip_metrics(
         recall_10px=_safe_ratio(matched_2d, n_tip),
         error_2d_px_ungated=float(np.mean(errors_ungated)) if errors_ungated else math.nan,
         ms_per_frame=ms_per_frame,
+        missed_15mm=None if causes is None else MissCauseCounts.of(missed_3d),
+        missed_10px=None if causes is None else MissCauseCounts.of(missed_2d),
     )
+
+
+def annotated_tip_causes(
+    data: AnnotatedDepth,
+    model: FingertipForest,
+    *,
+    config: DetectorConfig = DEFAULT_DETECTOR,
+    params: MissCauseParams = DEFAULT_MISS_CAUSE_PARAMS,
+) -> list[tuple[MissCause | None, ...]]:
+    """The cause each annotated tip of each frame would be missed for.
+
+    :func:`fingertips.miss_causes.tip_causes` with the hand pixels the detector keeps
+    (:func:`fingertips.detect.hand_depth` with ``config``'s segmentation), the model's
+    working depth range and the frames' keypoints where ``data`` has them.
+
+    Parameters
+    ----------
+    data : AnnotatedDepth
+    model : FingertipForest
+    config : DetectorConfig
+        The settings the detections were made with.
+    params : MissCauseParams
+
+    Returns
+    -------
+    list of tuple of (str or None)
+        Per frame, per tip slot (thumb to little): a cause of
+        :data:`fingertips.miss_causes.MISS_CAUSES`, None where not annotated.
+    """
+    causes = []
+    for k, depth in enumerate(data.depth_m):
+        hand = hand_depth(
+            depth,
+            model,
+            depth_band_m=config.depth_band_m,
+            segmentation=config.segmentation,
+            intrinsics=data.intrinsics,
+        )
+        causes.append(
+            tip_causes(
+                depth,
+                data.intrinsics,
+                data.tips_m[k],
+                data.tips_px[k],
+                hand_depth_m=hand,
+                keypoints_m=None if data.keypoints_m is None else data.keypoints_m[k],
+                working_range_m=model.depth_range_m,
+                params=params,
+            )
+        )
+    return causes
 
 
 def evaluate_detector(
@@ -368,10 +539,14 @@ def evaluate_detector(
     Returns
     -------
     FingertipMetrics
-        Including the mean wall-clock detection time per frame.
+        Including the mean wall-clock detection time per frame and the misses by
+        cause (:func:`annotated_tip_causes`).
     """
     detections, ms_per_frame = run_detector(data, model, config=config, progress=progress)
-    return fingertip_metrics(detections, data.tips_m, data.tips_px, ms_per_frame=ms_per_frame)
+    causes = annotated_tip_causes(data, model, config=config)
+    return fingertip_metrics(
+        detections, data.tips_m, data.tips_px, ms_per_frame=ms_per_frame, causes=causes
+    )
 
 
 def run_detector(

@@ -182,7 +182,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="score the detector on annotated frames",
         description="Detect fingertips in an annotated RGB-D folder and score them: "
         "precision and recall within 15 mm, mean 3D and 2D error of matched detections, "
-        "recall within 10 px, time per frame.",
+        "recall within 10 px, time per frame, and the missed tips counted by cause "
+        "(border, segmentation, distance, merged, curled, other; docs/fingertips.md).",
     )
     evaluate.add_argument("input", help="folder with annotations.jsonl or groundtruth.jsonl")
     _add_model_options(evaluate)
@@ -198,8 +199,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--sheet",
         metavar="PNG",
         help=f"also draw a contact sheet of up to {SHEET_FRAMES} frames (evenly spread): "
-        "annotated tips green if a detection is within 10 px, red if missed; detections "
-        "cyan if matched, orange if not",
+        "annotated tips green if a detection is within 10 px, red if missed and marked "
+        "with the cause's letter (legend below the tiles); detections cyan if matched, "
+        "orange if not",
     )
     evaluate.add_argument("--json", action="store_true", help="print one JSON object")
     evaluate.set_defaults(run=run_eval)
@@ -230,6 +232,13 @@ def _add_model_options(parser: argparse.ArgumentParser) -> None:
         help="smallest heatmap verifier probability added (default: the model's; 0: no heatmap)",
     )
     parser.add_argument("--stride", type=int, help="fixed pixel stride (default: the model's)")
+    parser.add_argument(
+        "--segmentation",
+        choices=("band", "surface"),
+        help="hand pixels: 'band' (a depth band behind the nearest surface) or 'surface' "
+        "(bare hand: tables and walls removed, nearest connected surface, forearm cut); "
+        "default: the model's",
+    )
 
 
 def _positive(name: str, value: int | None) -> int | None:
@@ -425,6 +434,8 @@ def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
     config = replace(config, min_tip_probability=tip, heatmap_min_probability=heat)
     if _positive("--stride", args.stride) is not None:
         config = replace(config, stride=args.stride, pixel_spacing_m=0.0)
+    if args.segmentation is not None:
+        config = replace(config, segmentation=args.segmentation)
     return model, config
 
 
@@ -540,6 +551,7 @@ def _write_records(
 
 def run_eval(args: argparse.Namespace) -> int:
     from fingertips.evaluation import (
+        annotated_tip_causes,
         fingertip_metrics,
         read_annotated_depth,
         run_detector,
@@ -554,14 +566,19 @@ def run_eval(args: argparse.Namespace) -> int:
     model, config = _load_model(args)
     data = read_annotated_depth(root, annotations=name)
     detections, ms_per_frame = run_detector(data, model, config=config, progress=_progress)
-    metrics = fingertip_metrics(detections, data.tips_m, data.tips_px, ms_per_frame=ms_per_frame)
+    causes = annotated_tip_causes(data, model, config=config)
+    metrics = fingertip_metrics(
+        detections, data.tips_m, data.tips_px, ms_per_frame=ms_per_frame, causes=causes
+    )
     if args.sheet:
         from fingertips.pictures import scored_sheet
         from tracker.overlay import write_rgb
 
         Path(args.sheet).parent.mkdir(parents=True, exist_ok=True)
-        write_rgb(Path(args.sheet), scored_sheet(data, detections, max_frames=SHEET_FRAMES))
+        sheet = scored_sheet(data, detections, causes=causes, max_frames=SHEET_FRAMES)
+        write_rgb(Path(args.sheet), sheet)
         print(f"wrote {args.sheet}", file=sys.stderr)
+    assert metrics.missed_15mm is not None and metrics.missed_10px is not None
     result = {
         "frames": metrics.frames,
         "detections": metrics.detections,
@@ -573,6 +590,10 @@ def run_eval(args: argparse.Namespace) -> int:
         "recall_at_10px": metrics.recall_10px,
         "error_px_ungated_mean": metrics.error_2d_px_ungated,
         "ms_per_frame": metrics.ms_per_frame,
+        "missed_by_cause": {
+            "15mm": metrics.missed_15mm.as_dict(),
+            "10px": metrics.missed_10px.as_dict(),
+        },
         "annotations": name,
         "model": str(args.model or "default"),
         "detector": config.as_dict(),
@@ -596,7 +617,9 @@ def run_eval(args: argparse.Namespace) -> int:
         f"{metrics.error_2d_px:.1f} px\n"
         f"recall at 10 px {metrics.recall_10px:.3f}; mean 2D error without a gate "
         f"{metrics.error_2d_px_ungated:.1f} px\n"
-        f"{metrics.ms_per_frame:.1f} ms per frame",
+        f"{metrics.ms_per_frame:.1f} ms per frame\n"
+        f"missed within 15 mm by cause: {_cause_counts(metrics.missed_15mm.as_dict())}\n"
+        f"missed within 10 px by cause: {_cause_counts(metrics.missed_10px.as_dict())}",
         file=sys.stdout,
     )
     if guesses is not None:
@@ -607,6 +630,11 @@ def run_eval(args: argparse.Namespace) -> int:
             f"{100 * guesses.within_15deg:.0f}% within 15 deg; {guesses.ms_per_guess:.0f} ms"
         )
     return 0
+
+
+def _cause_counts(counts: dict[str, int]) -> str:
+    """``"12 (border 1, segmentation 3, ...)"``: the total, then every cause's count."""
+    return f"{sum(counts.values())} (" + ", ".join(f"{c} {n}" for c, n in counts.items()) + ")"
 
 
 def _finite_or_none(value: Any) -> Any:

@@ -71,6 +71,22 @@ def test_reads_mediapipe_keypoints(tmp_path: Path) -> None:
     data = read_annotated_depth(tmp_path, annotations="groundtruth.jsonl")
     np.testing.assert_allclose(data.tips_m[0], keypoints[[4, 8, 12, 16, 20]])
     assert np.all(np.isnan(data.tips_m[1]))
+    assert data.keypoints_m is not None
+    np.testing.assert_allclose(data.keypoints_m[0], keypoints)
+    assert np.all(np.isnan(data.keypoints_m[1]))
+    # Beside annotations.jsonl (a rendered folder), the keypoints come from groundtruth.jsonl.
+    tips = {"thumb": {"xyz_m": [0.01, 0.02, 0.3], "uv_px": [41.5, 44.2]}}
+    annotations = [{"frame": 1, "fingertips": {}}, {"frame": 0, "fingertips": tips}]
+    (tmp_path / "annotations.jsonl").write_text("".join(json.dumps(r) + "\n" for r in annotations))
+    both = read_annotated_depth(tmp_path)
+    assert both.keypoints_m is not None
+    assert np.all(np.isnan(both.keypoints_m[0]))
+    np.testing.assert_allclose(both.keypoints_m[1], keypoints)
+    (tmp_path / "groundtruth.jsonl").write_text('{"frame": 0, "keypoints_3d_m": [[0, 0, 1]]}\n')
+    with pytest.raises(ValueError, match=r"groundtruth\.jsonl:1: keypoints_3d_m: expected"):
+        read_annotated_depth(tmp_path)
+    (tmp_path / "groundtruth.jsonl").unlink()
+    assert read_annotated_depth(tmp_path).keypoints_m is None
 
 
 def test_missing_annotations_raise(tmp_path: Path) -> None:

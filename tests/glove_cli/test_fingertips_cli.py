@@ -13,7 +13,8 @@ import pytest
 from fingertips.detector import FingertipDetector
 from fingertips.forest import load_forest
 from fingertips.heatmap import HeatmapNetwork
-from fingertips.pictures import scored_overlay
+from fingertips.miss_causes import MISS_CAUSES
+from fingertips.pictures import cause_legend, scored_overlay
 from glove_cli.main import main
 
 REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real_depth" / "hmodel_andrii"
@@ -98,6 +99,36 @@ def test_eval_json_prints_one_object(tmp_path: Path, capsys) -> None:
     assert len(out.strip().splitlines()) == 1
     assert EVAL_KEYS <= set(result)
     assert result["frames"] == 2 and result["annotated_tips"] == 2
+    # Every missed tip is counted once, under one cause, at each gate.
+    by_cause = result["missed_by_cause"]
+    assert set(by_cause) == {"15mm", "10px"}
+    assert list(by_cause["15mm"]) == list(by_cause["10px"]) == list(MISS_CAUSES)
+    missed = {"15mm": 1 - result["recall"], "10px": 1 - result["recall_at_10px"]}
+    for gate, share in missed.items():
+        assert sum(by_cause[gate].values()) == round(2 * share)
+
+
+def test_eval_segmentation_option_selects_the_hand_pixels(tmp_path: Path, capsys) -> None:
+    _write_folder(tmp_path)
+    argv = ["fingertips", "eval", str(tmp_path), "--json", "--segmentation", "surface"]
+    assert main(argv) == 0
+    assert json.loads(capsys.readouterr().out)["detector"]["segmentation"] == "surface"
+    assert main([*argv[:-1], "glove"]) == 2
+
+
+def test_eval_text_lists_the_misses_by_cause(tmp_path: Path, capsys) -> None:
+    _write_folder(tmp_path)
+    (tmp_path / "annotations.jsonl").write_text(  # a tip on the image border: missed
+        "".join(
+            json.dumps({"frame": k, "fingertips": {"thumb": {"xyz_m": [0.0, -0.163, 0.4],
+                        "uv_px": [39.5, 1.0]}}}) + "\n"
+            for k in range(2)
+        )
+    )  # fmt: skip
+    assert main(["fingertips", "eval", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "missed within 15 mm by cause: 2 (border 2, segmentation 0, distance 0" in out
+    assert "missed within 10 px by cause: 2 (border 2," in out
 
 
 def test_detect_writes_a_record_and_an_overlay_per_frame(tmp_path: Path, capsys) -> None:
@@ -187,7 +218,8 @@ def test_eval_sheet_draws_every_frame_and_marks_tips(tmp_path: Path, capsys) -> 
     assert main(argv) == 0
     result = json.loads(capsys.readouterr().out)  # stdout stays one JSON object
     picture = cv2.imread(str(sheet))[..., ::-1]
-    assert picture.shape == (60, 3 * 80, 3)
+    # The tiles, then the legend of the causes' letters.
+    assert picture.shape == (60 + cause_legend(3 * 80).shape[0], 3 * 80, 3)
     # Each tile circles the annotated tip (39.5, 10): green if found, red if missed.
     found = round(3 * result["recall_at_10px"])
     for k in range(3):
@@ -216,6 +248,21 @@ def test_scored_overlay_colours_found_and_missed_tips() -> None:
     assert has(cyan, 23, 30, r=4) and has(orange, 40, 50, r=4) and not has(cyan, 40, 50, r=4)
     # VGA frames are halved so that a sheet of many frames stays readable.
     assert scored_overlay(np.zeros((480, 640), np.float32), uv, tips).shape == (240, 320, 3)
+    # With causes, the miss carries its cause's letter up and right of its circle.
+    causes = ("border", "curled", None, None, None)
+    marked = scored_overlay(depth, uv, tips, causes=causes)
+    changed = np.any(marked != picture, axis=2)
+    assert changed[10:21, 70:80].any()  # beside the missed tip (60, 30), radius 10
+    assert not changed[:, :50].any()  # nothing beside the found tip
+    with pytest.raises(ValueError, match="causes: expected 5"):
+        scored_overlay(depth, uv, tips, causes=causes[:2])
+
+
+def test_the_legend_wraps_to_the_sheet_width() -> None:
+    wide, narrow = cause_legend(1920), cause_legend(240)
+    assert wide.shape[1] == 1920 and narrow.shape[1] == 240 and wide.dtype == np.uint8
+    assert narrow.shape[0] > wide.shape[0]  # more lines
+    assert not np.any(narrow[:, -4:])  # every line fits
 
 
 @pytest.mark.skipif(not REAL.is_dir(), reason="shared real depth data not available")
