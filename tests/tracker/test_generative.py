@@ -347,6 +347,36 @@ def test_proportions_are_recovered_from_frames_of_a_larger_hand(samples):
     assert np.all(np.abs(found[2:5] * found[0] - 1.12 * 1.1) < 0.06)
 
 
+def test_noise_along_the_rays_does_not_shrink_the_estimated_hand(samples):
+    """Depth noise lies along the camera's rays; pairing by plain 3D distance lets
+    points measured too deep pair with the surface receding beside them, which pulls
+    the hand smaller (data.py's docstring). The default pairing counts depth half."""
+    rng = np.random.default_rng(0)
+    poses = [_pose(name, angle=a) for name in ("open", "pinch", "open") for a in (0.2, 0.6, -0.4)]
+    observations = []
+    for pose in poses:
+        observation = _observation(samples, pose)
+        points = observation.points_m
+        along = 1.0 + rng.normal(0.0, 0.003, len(points)) / np.linalg.norm(points, axis=1)
+        observations.append(replace(observation, points_m=points * along[:, None]))
+    scale, default = {}, FitSettings().data_depth_scale
+    for depth_scale in (1.0, default):
+        settings = FitSettings(
+            iterations=8, temporal_weight=0.0, tolerance=1e-6, data_depth_scale=depth_scale
+        )
+        estimate, information = samples, None
+        for pose, observation in zip(poses, observations, strict=True):
+            fit = fit_frame(
+                estimate, observation, pose, settings=settings, prior=load_posture_prior(),
+                estimate_proportions=True, proportion_information=information,
+            )  # fmt: skip
+            information = fit.proportion_information
+            estimate = estimate.with_proportions(fit.proportions)
+        scale[depth_scale] = estimate.proportions.as_vector()[0]
+    assert abs(scale[default] - 1.0) < 0.008
+    assert abs(scale[1.0] - 1.0) > 1.5 * abs(scale[default] - 1.0)
+
+
 def test_directional_rows_are_the_projected_vertex_jacobian(samples):
     hand = PosedHand(samples, _pose("power"))
     ids = np.arange(0, len(samples), 11)

@@ -86,6 +86,10 @@ class FitSettings:
     data_gate_m : float
         Observed points farther than this from every model sample of their color
         are not paired.
+    data_depth_scale : float
+        Observed points are paired with model samples by a distance whose component
+        along the optical axis counts this much (the sensor's noise lies along its
+        rays; :mod:`tracker.generative.energy.data`).
     silhouette_weight : float
         Per metre of RMS distance of model samples outside the observed hand.
     silhouette_margin_px : float
@@ -137,6 +141,7 @@ class FitSettings:
     data_weight: float = 1000.0
     data_huber_m: float = 0.006
     data_gate_m: float = 0.03
+    data_depth_scale: float = 0.5
     silhouette_weight: float = 300.0
     silhouette_margin_px: float = 2.0
     depth_margin_m: float = 0.012
@@ -251,7 +256,8 @@ def frame_energy(
     s = settings
     data, matched = data_residuals(
         hand, observation.points_m, observation.labels, weight=s.data_weight,
-        huber_m=s.data_huber_m, gate_m=s.data_gate_m, proportions=proportions,
+        huber_m=s.data_huber_m, gate_m=s.data_gate_m, depth_scale=s.data_depth_scale,
+        proportions=proportions,
     )  # fmt: skip
     silhouette, outside = silhouette_residuals(
         hand, observation, weight=s.silhouette_weight, margin_px=s.silhouette_margin_px,
