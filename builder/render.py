@@ -230,15 +230,25 @@ class GloveRenderer(Closing):
         return Rendering(labels.labels, labels.depth_m, np.ascontiguousarray(color[..., :3]))
 
     def render_labels(
-        self, posture_rad: ArrayLike, rotation: ArrayLike, translation_m: ArrayLike
+        self,
+        posture_rad: ArrayLike,
+        rotation: ArrayLike,
+        translation_m: ArrayLike,
+        *,
+        mesh: HandMesh | None = None,
     ) -> LabelRendering:
-        """Labels and depth only (faster). Arguments as :meth:`render`."""
+        """Labels and depth only (faster). Arguments as :meth:`render_label_views`."""
         return self.render_label_views(
-            posture_rad, np.asarray(rotation)[None], np.asarray(translation_m)[None]
+            posture_rad, np.asarray(rotation)[None], np.asarray(translation_m)[None], mesh=mesh
         )[0]
 
     def render_label_views(
-        self, posture_rad: ArrayLike, rotations: ArrayLike, translations_m: ArrayLike
+        self,
+        posture_rad: ArrayLike,
+        rotations: ArrayLike,
+        translations_m: ArrayLike,
+        *,
+        mesh: HandMesh | None = None,
     ) -> list[LabelRendering]:
         """Labels and depth of one posture seen in many global poses.
 
@@ -251,6 +261,10 @@ class GloveRenderer(Closing):
         rotations : (V, 3, 3) float
             ``cam_R_hand`` of every view.
         translations_m : (V, 3) float
+        mesh : HandMesh, optional
+            Another hand of this renderer's mesh topology, e.g. its
+            :func:`~glovedb.proportions.proportioned_mesh` (same faces; the patches
+            keep their colors, stretched with the hand). Default: the renderer's mesh.
 
         Returns
         -------
@@ -261,7 +275,7 @@ class GloveRenderer(Closing):
         translations = as_array(
             "translations_m", translations_m, (len(rotations), 3), np.float64, finite=True
         )
-        hand_vertices = self._posed_hand(posture_rad)
+        hand_vertices = self._posed_hand(posture_rad, mesh)
         self._set_mesh("label", hand_vertices[self._source_vertex], None, self._label_colors)
         return [
             self._render_label_view(_camera_pose(rotation, translation))
@@ -279,9 +293,15 @@ class GloveRenderer(Closing):
             raise ValueError("the renderer is closed")
         return self._renderer
 
-    def _posed_hand(self, posture_rad: ArrayLike) -> NDArray[np.float64]:
+    def _posed_hand(
+        self, posture_rad: ArrayLike, mesh: HandMesh | None = None
+    ) -> NDArray[np.float64]:
         posture = as_array("posture_rad", posture_rad, (N_JOINTS,), np.float64, finite=True)
-        return pose_mesh(self.mesh, posture)
+        if mesh is None:
+            mesh = self.mesh
+        elif not np.array_equal(mesh.faces, self.mesh.faces):
+            raise ValueError("mesh: expected the renderer's mesh topology (the same faces)")
+        return pose_mesh(mesh, posture)
 
     def _render_label_view(self, camera_pose: NDArray[np.float64]) -> LabelRendering:
         self._label_scene.set_pose(self._camera_nodes["label"], camera_pose)

@@ -3,31 +3,47 @@
 Every example is one depth image of the hand model in a random scene:
 
 - **posture**: a named posture, an interpolation between two named postures (with a
-  few degrees of jitter), or a uniform sample within the joint limits; optionally a
+  few degrees of jitter), or a uniform sample within the joint limits; the "named"
+  pool can be joined by the postures of the database configs ``posture_sets``
+  (``configs/db/NAME.toml``: their named and natural random postures); optionally a
   share of scenes with curled fingers (claw / half fist, :func:`curl_fingers`), most
   of them seen from the palm side;
 - **view**: the camera looks at the middle of the hand from a direction mostly within
   a cone around the palm or the back normal and otherwise anywhere on the sphere, at
-  0.3-1.2 m, rolled about its axis, with the hand moved off the image centre;
-- **hand size**: hand length 0.16-0.21 m. Scaling a scene about the camera centre
-  leaves the image unchanged and scales depth, so one mesh of the default length
-  serves every size (render at ``t / s``, multiply depth by ``s``);
+  0.3-1.2 m (``distance_range_m``), rolled about its axis, with the hand moved off the
+  image centre; optionally (``border_fraction``) the middle of the hand is put on an
+  image edge or beyond it, so that the border cuts the hand;
+- **hand size**: hand length 0.16-0.21 m (``hand_length_range_m``). Scaling a scene
+  about the camera centre leaves the image unchanged and scales depth, so one mesh of
+  the default length serves every size (render at ``t / s``, multiply depth by ``s``);
+- **hand shape**: optionally per scene five finger length factors, a palm width and a
+  thickness factor (``finger_length_range``, ``palm_width_range``, ``thickness_range``)
+  that re-rest the default mesh (:func:`glovedb.proportions.proportioned_mesh`, about
+  20 ms a scene); ``hand_length_m`` then scales that hand as a whole;
 - **forearm**: optionally an elliptic cylinder continuing the wrist, bent by a random
   wrist flexion and deviation, added analytically to the depth (real frames show the
-  arm; the mesh ends in a short wrist cuff);
+  arm; the mesh ends in a short wrist cuff), and on some forearms a sleeve: a wider
+  cylinder over the forearm's far part;
 - **background**: sometimes a plane behind the hand (a wall or a table, possibly only
   on one side of a line in the image), added analytically to the depth;
+- **nearby object**: optionally a ball or a box (a held object, a body part, a table
+  corner) a few centimetres from a random keypoint, often on the camera's side of it,
+  ray-cast into the depth where it is nearer than the hand;
 - **sensor**: optionally half resolution (every second pixel) and the noise model of
   :mod:`builder.depth_noise`;
 - **hand side**: optionally mirrored left-right, which turns the right hand model into
   a left hand (the image is flipped, ``cx -> W - 1 - cx``, ``x -> -x``).
 
 Fingertips are the 3D keypoints 4, 8, 12, 16, 20 in the camera frame; a tip is NaN
-when its projection falls outside the image or when the clean depth there is more than
-``occlusion_tolerance_m`` in front of it. With ``surface_tip_depth_m`` set, a tip hidden
-by at most that much surface is instead moved onto the surface in front of it: the end
-of a curled finger as the camera sees it, where annotators (and fitted hand models)
-place the tip of a finger curled toward the palm.
+when its projection falls outside the image or when the clean depth there (the nearby
+object included) is more than ``occlusion_tolerance_m`` in front of it. With
+``surface_tip_depth_m`` set, a tip hidden by at most that much surface is instead moved
+onto the surface in front of it: the end of a curled finger as the camera sees it, where
+annotators (and fitted hand models) place the tip of a finger curled toward the palm; a
+tip behind the nearby object stays hidden (the object is not the finger's end).
+
+Every option above that is off by default draws no random number when off, so older
+configs render the same scenes for the same seed.
 """
 
 from __future__ import annotations
@@ -37,7 +53,7 @@ import os
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -56,10 +72,14 @@ from glovedb.hand_model import (
     FINGERTIP_KEYPOINTS,
     JOINT_NAMES,
     N_JOINTS,
+    N_KEYPOINTS,
     forward_kinematics,
     joint_limits_rad,
     make_skeleton,
 )
+from glovedb.mesh import HandMesh
+from glovedb.proportions import FACTOR_RANGE, HandProportions, proportioned_mesh
+from glovedb.resources import config_path
 from glovedb.views import HAND_CENTRE, pose_for_view
 
 MIRROR = np.diag([-1.0, 1.0, 1.0])
@@ -83,7 +103,8 @@ class FingertipDataConfig:
     distance_range_m : tuple of float
         Camera to the middle of the hand, metres.
     hand_length_range_m : tuple of float
-        Wrist crease to middle fingertip, metres.
+        Wrist crease to middle fingertip, metres (of the model's shape: a scene's
+        finger length factors then lengthen or shorten its fingers).
     posture_mix : tuple of float
         Shares of named, interpolated and uniform postures (normalised).
     posture_jitter_deg : float
@@ -139,6 +160,43 @@ class FingertipDataConfig:
         Share of the curled scenes seen from the palm side: the direction to the camera
         is uniform over the cap within ``facing_cone_deg`` of the palm normal; the
         others are drawn like every other scene.
+    posture_sets : tuple of str
+        Database configs (``configs/db/NAME.toml``, e.g. ``grasp20``, ``natural1000``)
+        whose postures join the named postures as the pool of named and interpolated
+        postures. Empty (default): the named postures only.
+    finger_length_range : tuple of float
+        Each finger's length factor (thumb to little, drawn independently per scene)
+        is uniform in this range, against the model's. (1, 1) (default) with the two
+        ranges below: the model's shape, no draw.
+    palm_width_range : tuple of float
+        Palm width factor, uniform per scene.
+    thickness_range : tuple of float
+        Thickness factor of palm and fingers (across the palm plane), uniform per scene.
+    border_fraction : float
+        Share of scenes whose middle of the hand lies on an image edge or beyond it
+        (instead of within ``offcentre_fraction``), so that the border cuts the hand.
+    border_overhang_range : tuple of float
+        How far beyond the edge the middle of the hand lies in those scenes, in hand
+        lengths as seen in the image (negative: inside), uniform.
+    sleeve_probability : float
+        Share of forearms with a sleeve over their far part.
+    sleeve_start_range : tuple of float
+        Where the sleeve starts, hand lengths from the wrist (it ends with the forearm,
+        :data:`FOREARM_LENGTH`), uniform.
+    sleeve_width_range : tuple of float
+        The sleeve's half axes against the forearm's, uniform.
+    object_probability : float
+        Share of scenes with a nearby object (:class:`NearbyObject`).
+    object_box_fraction : float
+        Share of those objects that are boxes (the others are balls).
+    object_size_range_m : tuple of float
+        Ball radius, or each half extent of a box, metres, uniform.
+    object_gap_range_m : tuple of float
+        Gap between the object's surface and the keypoint it is placed next to, metres.
+    object_front_fraction : float
+        Share of objects placed on the camera's side of their keypoint (within 60
+        degrees of the direction to the camera), where they may hide fingertips; the
+        others lie in a uniform direction.
     seed : int
         Seed of every random choice.
     """
@@ -177,6 +235,20 @@ class FingertipDataConfig:
     curl_dip_range_deg: tuple[float, float] = (30.0, 85.0)
     curl_palm_fraction: float = 0.7
     curl_beyond_limits: bool = False
+    posture_sets: tuple[str, ...] = ()
+    finger_length_range: tuple[float, float] = (1.0, 1.0)
+    palm_width_range: tuple[float, float] = (1.0, 1.0)
+    thickness_range: tuple[float, float] = (1.0, 1.0)
+    border_fraction: float = 0.0
+    border_overhang_range: tuple[float, float] = (-0.2, 0.3)
+    sleeve_probability: float = 0.0
+    sleeve_start_range: tuple[float, float] = (0.3, 1.0)
+    sleeve_width_range: tuple[float, float] = (1.15, 1.5)
+    object_probability: float = 0.0
+    object_box_fraction: float = 0.5
+    object_size_range_m: tuple[float, float] = (0.02, 0.06)
+    object_gap_range_m: tuple[float, float] = (0.0, 0.03)
+    object_front_fraction: float = 0.5
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -196,7 +268,8 @@ class FingertipDataConfig:
             "half_resolution_fraction", "facing_fraction", "offcentre_fraction",
             "plane_probability", "half_plane_probability", "mirror_probability",
             "forearm_probability", "curl_fraction", "curl_finger_probability",
-            "curl_palm_fraction",
+            "curl_palm_fraction", "border_fraction", "sleeve_probability",
+            "object_probability", "object_box_fraction", "object_front_fraction",
         )  # fmt: skip
         for name in shares:
             if not 0 <= getattr(self, name) <= 1:
@@ -225,6 +298,29 @@ class FingertipDataConfig:
             raise ValueError("noise: expected at least one preset")
         for preset in self.noise:
             check_choice("noise", preset, NOISE_PRESETS)
+        bounded = (
+            ("finger_length_range", FACTOR_RANGE), ("palm_width_range", FACTOR_RANGE),
+            ("thickness_range", FACTOR_RANGE), ("border_overhang_range", (-1.0, 1.0)),
+            ("sleeve_start_range", (0.0, FOREARM_LENGTH)), ("sleeve_width_range", (1.0, 3.0)),
+            ("object_size_range_m", (0.005, 0.5)), ("object_gap_range_m", (0.0, 0.5)),
+        )  # fmt: skip
+        for name, (least, most) in bounded:
+            low, high = getattr(self, name)
+            if not least <= low <= high <= most:
+                raise ValueError(
+                    f"{name}: expected {least} <= min <= max <= {most}, got {(low, high)}"
+                )
+        for name in self.posture_sets:
+            try:
+                config_path(f"db/{name}.toml")
+            except FileNotFoundError as error:
+                raise ValueError(f"posture_sets: no configs/db/{name}.toml") from error
+
+    @property
+    def varies_shape(self) -> bool:
+        """Whether scenes draw a hand shape (any shape range other than (1, 1))."""
+        ranges = (self.finger_length_range, self.palm_width_range, self.thickness_range)
+        return any(tuple(r) != (1.0, 1.0) for r in ranges)
 
     @property
     def camera(self) -> CameraIntrinsics:
@@ -261,6 +357,15 @@ class Scene:
     forearm_rotation : (3, 3) float64 or None
         ``hand_R_forearm``: the forearm runs along its frame's -y axis from the wrist;
         None without a forearm.
+    proportions : HandProportions or None
+        Finger lengths and palm width (``length_scale`` 1: ``hand_length_m`` scales);
+        None: the model's.
+    thickness : float
+        Thickness factor of the mesh (:func:`glovedb.proportions.proportioned_mesh`).
+    sleeve : (2,) tuple of float or None
+        ``(start, width)``: the sleeve's start in hand lengths from the wrist and its
+        half axes against the forearm's; None without a sleeve.
+    nearby_object : NearbyObject or None
     """
 
     posture_rad: NDArray[np.float64]
@@ -273,6 +378,34 @@ class Scene:
     noise: str
     mirrored: bool
     forearm_rotation: NDArray[np.float64] | None = None
+    proportions: HandProportions | None = None
+    thickness: float = 1.0
+    sleeve: tuple[float, float] | None = None
+    nearby_object: NearbyObject | None = None
+
+
+@dataclass(frozen=True)
+class NearbyObject:
+    """A ball or a box beside the hand: a held object, a body part, a table corner.
+
+    Attributes
+    ----------
+    kind : {"ball", "box"}
+    anchor : int
+        Keypoint (0-20) it is placed next to.
+    offset_m : (3,) float64
+        From that keypoint to the object's centre, camera frame, metres.
+    half_extents_m : (3,) float64
+        A box's half extents along its axes; a ball's radius, three times. Metres.
+    rotation : (3, 3) float64
+        ``cam_R_object`` (the identity for a ball).
+    """
+
+    kind: Literal["ball", "box"]
+    anchor: int
+    offset_m: NDArray[np.float64]
+    half_extents_m: NDArray[np.float64]
+    rotation: NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -420,8 +553,11 @@ def sample_scene(
     centre_hand = np.array(HAND_CENTRE) * length
     rotation, translation = pose_for_view(direction, distance, target_m=centre_hand, roll_rad=roll)
     # Move the middle of the hand, at its depth, to a random pixel.
-    half = config.offcentre_fraction * np.array([config.width, config.height]) / 2
-    u, v = np.array([config.cx, config.cy]) + rng.uniform(-half, half)
+    if config.border_fraction > 0 and rng.uniform() < config.border_fraction:
+        u, v = _border_pixel(config, config.fx * length / distance, rng)
+    else:
+        half = config.offcentre_fraction * np.array([config.width, config.height]) / 2
+        u, v = np.array([config.cx, config.cy]) + rng.uniform(-half, half)
     lateral = np.array([(u - config.cx) / config.fx, (v - config.cy) / config.fy]) * distance
     translation = translation + np.append(lateral, 0.0)
     plane = half_plane = None
@@ -435,6 +571,11 @@ def sample_scene(
             through = rng.uniform((0, 0), (config.width, config.height))
             a, b = np.cos(angle), np.sin(angle)
             half_plane = np.array([a, b, -(a * through[0] + b * through[1])])
+    half_resolution = bool(rng.uniform() < config.half_resolution_fraction)
+    noise = str(config.noise[rng.integers(len(config.noise))])
+    mirrored = bool(rng.uniform() < config.mirror_probability)
+    forearm = _sample_forearm(config, rng)
+    proportions, thickness = _sample_shape(config, rng)
     return Scene(
         posture_rad=posture,
         rotation=rotation,
@@ -442,11 +583,98 @@ def sample_scene(
         hand_length_m=float(length),
         plane=plane,
         half_plane=half_plane,
-        half_resolution=bool(rng.uniform() < config.half_resolution_fraction),
-        noise=str(config.noise[rng.integers(len(config.noise))]),
-        mirrored=bool(rng.uniform() < config.mirror_probability),
-        forearm_rotation=_sample_forearm(config, rng),
+        half_resolution=half_resolution,
+        noise=noise,
+        mirrored=mirrored,
+        forearm_rotation=forearm,
+        proportions=proportions,
+        thickness=thickness,
+        sleeve=None if forearm is None else _sample_sleeve(config, rng),
+        nearby_object=_sample_object(config, rng),
     )
+
+
+def _border_pixel(
+    config: FingertipDataConfig, hand_px: float, rng: np.random.Generator
+) -> NDArray[np.float64]:
+    """A pixel on a random image edge, moved outward by ``border_overhang_range`` hands."""
+    edge = int(rng.integers(4))
+    along = rng.uniform()
+    overhang = rng.uniform(*config.border_overhang_range) * hand_px
+    width, height = config.width, config.height
+    if edge == 0:
+        return np.array([-0.5 - overhang, -0.5 + along * height])
+    if edge == 1:
+        return np.array([width - 0.5 + overhang, -0.5 + along * height])
+    if edge == 2:
+        return np.array([-0.5 + along * width, -0.5 - overhang])
+    return np.array([-0.5 + along * width, height - 0.5 + overhang])
+
+
+def _sample_shape(
+    config: FingertipDataConfig, rng: np.random.Generator
+) -> tuple[HandProportions | None, float]:
+    """Finger lengths, palm width and thickness of one scene; the model's when fixed."""
+    if not config.varies_shape:
+        return None, 1.0
+    fingers = tuple(float(f) for f in rng.uniform(*config.finger_length_range, size=5))
+    palm = float(rng.uniform(*config.palm_width_range))
+    thickness = float(rng.uniform(*config.thickness_range))
+    return HandProportions(1.0, fingers, palm), thickness  # type: ignore[arg-type]
+
+
+def _sample_sleeve(
+    config: FingertipDataConfig, rng: np.random.Generator
+) -> tuple[float, float] | None:
+    """``(start, width)`` of a sleeve over the forearm, or None."""
+    if config.sleeve_probability <= 0 or not rng.uniform() < config.sleeve_probability:
+        return None
+    return float(rng.uniform(*config.sleeve_start_range)), float(
+        rng.uniform(*config.sleeve_width_range)
+    )
+
+
+def _sample_object(config: FingertipDataConfig, rng: np.random.Generator) -> NearbyObject | None:
+    """A ball or box next to a random keypoint (:class:`NearbyObject`), or None."""
+    if config.object_probability <= 0 or not rng.uniform() < config.object_probability:
+        return None
+    box = bool(rng.uniform() < config.object_box_fraction)
+    if box:
+        half = rng.uniform(*config.object_size_range_m, size=3)
+        rotation = _random_rotation(rng)
+    else:
+        half = np.repeat(rng.uniform(*config.object_size_range_m), 3)
+        rotation = np.eye(3)
+    anchor = int(rng.integers(N_KEYPOINTS))
+    if rng.uniform() < config.object_front_fraction:
+        # Within 60 degrees of -z: the camera's side of the keypoint.
+        cos_theta = rng.uniform(0.5, 1.0)
+        sin_theta = np.sqrt(1.0 - cos_theta**2)
+        phi = rng.uniform(0.0, 2 * np.pi)
+        direction = np.array([sin_theta * np.cos(phi), sin_theta * np.sin(phi), -cos_theta])
+    else:
+        direction = sample_direction(0.0, 0.0, rng)
+    # Centre to surface along the direction: the first box face the ray leaves by.
+    local = np.abs(rotation.T @ direction)
+    with np.errstate(divide="ignore"):
+        reach = float(np.min(np.where(local > 0, half / local, np.inf)))
+    gap = rng.uniform(*config.object_gap_range_m)
+    return NearbyObject(
+        kind="box" if box else "ball",
+        anchor=anchor,
+        offset_m=direction * (reach + gap),
+        half_extents_m=half,
+        rotation=rotation,
+    )
+
+
+def _random_rotation(rng: np.random.Generator) -> NDArray[np.float64]:
+    """A uniformly random rotation matrix (QR of a Gaussian matrix, signs fixed)."""
+    q, r = np.linalg.qr(rng.standard_normal((3, 3)))
+    q = q * np.sign(np.diag(r))
+    if np.linalg.det(q) < 0:
+        q[:, 0] = -q[:, 0]
+    return q
 
 
 def _sample_forearm(
@@ -480,13 +708,17 @@ def forearm_depth(
     cam_R_forearm: NDArray[np.float64],
     wrist_m: NDArray[np.float64],
     hand_length_m: float,
+    *,
+    half_axes: tuple[float, float] = FOREARM_HALF_AXES,
+    span: tuple[float, float] = (0.0, FOREARM_LENGTH),
 ) -> NDArray[np.float32]:
     """Depth of a forearm: the front surface of an elliptic cylinder from the wrist.
 
-    The cylinder runs from the wrist along the forearm frame's -y axis for
-    :data:`FOREARM_LENGTH` hand lengths, with the half axes :data:`FOREARM_HALF_AXES`
-    (x, z of that frame); it is open at both ends (the wrist end lies inside the
-    hand's wrist cuff).
+    The cylinder runs along the forearm frame's -y axis from ``span[0]`` to ``span[1]``
+    hand lengths from the wrist (default: from the wrist for :data:`FOREARM_LENGTH`),
+    with the half axes ``half_axes`` in hand lengths (x, z of that frame; default
+    :data:`FOREARM_HALF_AXES`); it is open at both ends (the wrist end lies inside the
+    hand's wrist cuff). A sleeve is such a cylinder, wider, over the far part.
 
     Parameters
     ----------
@@ -499,6 +731,10 @@ def forearm_depth(
     wrist_m : (3,) float64
         Wrist in the camera frame, metres.
     hand_length_m : float
+    half_axes : (2,) tuple of float
+        Hand lengths.
+    span : (2,) tuple of float
+        Hand lengths from the wrist.
 
     Returns
     -------
@@ -510,7 +746,7 @@ def forearm_depth(
     # Rays z * (x, y, 1) in the forearm frame, scaled so the cross-section is a unit disc.
     rays = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones(shape)], axis=-1) @ cam_R_forearm
     origin = -cam_R_forearm.T @ wrist_m
-    half_x, half_z = (hand_length_m * a for a in FOREARM_HALF_AXES)
+    half_x, half_z = (hand_length_m * a for a in half_axes)
     dx, dz = rays[..., 0] / half_x, rays[..., 2] / half_z
     ox, oz = origin[0] / half_x, origin[2] / half_z
     a = dx**2 + dz**2
@@ -520,7 +756,56 @@ def forearm_depth(
     with np.errstate(divide="ignore", invalid="ignore"):
         z = (-b - np.sqrt(np.maximum(discriminant, 0.0))) / (2.0 * a)
     along = origin[1] + z * rays[..., 1]
-    hit = (discriminant > 0) & (z > 0) & (along <= 0) & (along >= -FOREARM_LENGTH * hand_length_m)
+    near, far = (-extent * hand_length_m for extent in span)
+    hit = (discriminant > 0) & (z > 0) & (along <= near) & (along >= far)
+    return np.where(hit, z, 0.0).astype(np.float32)
+
+
+def object_depth(
+    shape: tuple[int, int],
+    intrinsics: NDArray[np.float64],
+    centre_m: NDArray[np.float64],
+    nearby: NearbyObject,
+) -> NDArray[np.float32]:
+    """Depth of the front surface of a ball or a box (:class:`NearbyObject`).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        Image ``(H, W)``.
+    intrinsics : (4,) float64
+        ``(fx, fy, cx, cy)`` in pixels.
+    centre_m : (3,) float64
+        The object's centre in the camera frame, metres.
+    nearby : NearbyObject
+
+    Returns
+    -------
+    (H, W) float32
+        Depth in metres, 0 where the ray misses the object.
+    """
+    fx, fy, cx, cy = intrinsics
+    v, u = np.indices(shape, dtype=np.float64)
+    # Rays z * (x, y, 1): the ray parameter is the depth.
+    rays = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones(shape)], axis=-1)
+    if nearby.kind == "ball":
+        radius = float(nearby.half_extents_m[0])
+        a = np.einsum("hwk,hwk->hw", rays, rays)
+        b = -2.0 * rays @ centre_m
+        c = float(centre_m @ centre_m) - radius**2
+        discriminant = b**2 - 4.0 * a * c
+        z = (-b - np.sqrt(np.maximum(discriminant, 0.0))) / (2.0 * a)
+        hit = (discriminant > 0) & (z > 0)
+    else:
+        # Slabs in the box frame: the ray is inside between the largest entry and the
+        # smallest exit parameter over the three axes.
+        local = rays @ nearby.rotation
+        origin = -nearby.rotation.T @ centre_m
+        with np.errstate(divide="ignore", invalid="ignore"):
+            low = (-nearby.half_extents_m - origin) / local
+            high = (nearby.half_extents_m - origin) / local
+        z = np.minimum(low, high).max(axis=-1)
+        hit = (z <= np.maximum(low, high).min(axis=-1)) & (z > 0)
     return np.where(hit, z, 0.0).astype(np.float32)
 
 
@@ -596,17 +881,27 @@ def render_scene(
 ) -> FingertipExample:
     """Render one scene with the default-length mesh of ``renderer`` (see module doc)."""
     scale = scene.hand_length_m / renderer.mesh.skeleton.hand_length_m
+    mesh = scene_mesh(renderer.mesh, scene)
     rendering = renderer.render_labels(
-        scene.posture_rad, scene.rotation, scene.translation_m / scale
+        scene.posture_rad,
+        scene.rotation,
+        scene.translation_m / scale,
+        mesh=None if mesh is renderer.mesh else mesh,
     )
     hand_depth = rendering.depth_m * np.float32(scale)
-    keypoints_hand = forward_kinematics(scene.posture_rad, renderer.mesh.skeleton).keypoints_m[0]
+    keypoints_hand = forward_kinematics(scene.posture_rad, mesh.skeleton).keypoints_m[0]
     keypoints = scale * keypoints_hand @ scene.rotation.T + scene.translation_m
     intrinsics = np.array([config.fx, config.fy, config.cx, config.cy])
     depth = _add_forearm(hand_depth, scene, intrinsics)
+    thing = None
+    if scene.nearby_object is not None:
+        centre = keypoints[scene.nearby_object.anchor] + scene.nearby_object.offset_m
+        thing = object_depth(depth.shape, intrinsics, centre, scene.nearby_object)
+        depth = _nearer(thing, depth)
     depth = _add_plane(depth, hand_depth, keypoints, scene, intrinsics)
     if scene.half_resolution:
         depth = np.ascontiguousarray(depth[::2, ::2])
+        thing = None if thing is None else thing[::2, ::2]
         intrinsics = intrinsics / 2
     tips = visible_tips(
         depth,
@@ -615,6 +910,13 @@ def render_scene(
         tolerance_m=config.occlusion_tolerance_m,
         surface_m=config.surface_tip_depth_m,
     )
+    if thing is not None:
+        # A tip behind the object is hidden, never moved onto it.
+        behind = visible_tips(
+            thing, keypoints[list(FINGERTIP_KEYPOINTS)], intrinsics,
+            tolerance_m=config.occlusion_tolerance_m,
+        )  # fmt: skip
+        tips[np.isnan(behind[:, 0])] = np.nan
     depth = apply_depth_noise(depth, intrinsics, noise_preset(scene.noise), rng=rng)
     if scene.mirrored:
         depth, mirrored_camera, keypoints = mirror_example(depth, intrinsics, keypoints)
@@ -623,20 +925,39 @@ def render_scene(
     return FingertipExample(depth, intrinsics, tips, keypoints, scene)
 
 
+def scene_mesh(mesh: HandMesh, scene: Scene) -> HandMesh:
+    """``mesh`` (the model's) with the scene's finger lengths, palm width and thickness."""
+    if scene.proportions is None and scene.thickness == 1.0:
+        return mesh
+    proportions = scene.proportions if scene.proportions is not None else HandProportions()
+    return proportioned_mesh(mesh, proportions, thickness=scene.thickness)
+
+
+def _nearer(surface: NDArray[np.float32], depth_m: NDArray[np.float32]) -> NDArray[np.float32]:
+    """``depth_m`` with ``surface`` wherever that is seen and nearer (0: nothing seen)."""
+    in_front = (surface > 0) & ((depth_m == 0) | (surface < depth_m))
+    return np.where(in_front, surface, depth_m).astype(np.float32)
+
+
 def _add_forearm(
     hand_depth: NDArray[np.float32], scene: Scene, intrinsics: NDArray[np.float64]
 ) -> NDArray[np.float32]:
     if scene.forearm_rotation is None:
         return hand_depth
+    cam_R_forearm = scene.rotation @ scene.forearm_rotation
     arm = forearm_depth(
-        hand_depth.shape,
-        intrinsics,
-        scene.rotation @ scene.forearm_rotation,
-        scene.translation_m,
-        scene.hand_length_m,
+        hand_depth.shape, intrinsics, cam_R_forearm, scene.translation_m, scene.hand_length_m
     )
-    in_front = (arm > 0) & ((hand_depth == 0) | (arm < hand_depth))
-    return np.where(in_front, arm, hand_depth).astype(np.float32)
+    depth = _nearer(arm, hand_depth)
+    if scene.sleeve is None:
+        return depth
+    start, width = scene.sleeve
+    sleeve = forearm_depth(
+        hand_depth.shape, intrinsics, cam_R_forearm, scene.translation_m, scene.hand_length_m,
+        half_axes=(FOREARM_HALF_AXES[0] * width, FOREARM_HALF_AXES[1] * width),
+        span=(start, FOREARM_LENGTH),
+    )  # fmt: skip
+    return _nearer(sleeve, depth)
 
 
 def _add_plane(
@@ -672,6 +993,17 @@ def named_posture_list() -> list[NDArray[np.float64]]:
     return list(load_named_postures().values())
 
 
+def posture_pool(config: FingertipDataConfig) -> list[NDArray[np.float64]]:
+    """The named postures, then those of each of ``config.posture_sets`` in order."""
+    from builder.build import collect_postures
+    from builder.config import load_config
+
+    pool = named_posture_list()
+    for name in config.posture_sets:
+        pool.extend(collect_postures(load_config(config_path(f"db/{name}.toml")))[0])
+    return pool
+
+
 def generate_examples(
     config: FingertipDataConfig, renderer: GloveRenderer | None = None
 ) -> Iterator[FingertipExample]:
@@ -688,7 +1020,7 @@ def generate_examples(
     ------
     FingertipExample
     """
-    named = named_posture_list()
+    named = posture_pool(config)
     rng = np.random.default_rng(config.seed)
     own = renderer is None
     if renderer is None:
@@ -731,6 +1063,11 @@ def _record(frame: int, example: FingertipExample) -> tuple[dict[str, Any], dict
         "keypoints_2d_px": keypoints_px.tolist(),
         "noise": scene.noise,
     }
+    if scene.proportions is not None or scene.thickness != 1.0:
+        truth["hand_proportions"] = (scene.proportions or HandProportions()).as_dict()
+        truth["hand_thickness"] = scene.thickness
+    if scene.nearby_object is not None:
+        truth["nearby_object"] = scene.nearby_object.kind
     tips_px = keypoints_px[list(FINGERTIP_KEYPOINTS)]
     fingertips = {
         name: {"xyz_m": example.tips_m[k].tolist(), "uv_px": tips_px[k].tolist()}
@@ -808,12 +1145,18 @@ def require_one_camera(config: FingertipDataConfig) -> None:
 
     An RGB-D folder has one ``intrinsic.json``, so a folder of rendered frames
     (:func:`write_annotated_folder`) needs ``half_resolution_fraction`` 0 (all 640 x 480)
-    or 1 (all 320 x 240). Checked before rendering, not after the first mismatch.
+    or 1 (all 320 x 240), and a centred ``cx`` when some frames are mirrored.
+    Checked before rendering, not after the first mismatch.
     """
     if config.half_resolution_fraction not in (0.0, 1.0):
         raise ValueError(
             "half_resolution_fraction: a folder has one camera, so it must be 0 (all 640x480) "
             f"or 1 (all 320x240) to write frames, got {config.half_resolution_fraction}"
+        )
+    if 0 < config.mirror_probability < 1 and config.cx != (config.width - 1) / 2:
+        raise ValueError(
+            "cx: mirroring moves the principal point to W - 1 - cx, so a folder with mirrored "
+            f"and unmirrored frames needs cx = {(config.width - 1) / 2}, got {config.cx}"
         )
 
 

@@ -23,12 +23,13 @@ misses by cause.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -131,6 +132,47 @@ class MissCauseCounts:
         return cls(**{cause: listed.count(cause) for cause in MISS_CAUSES})
 
 
+DEPTH_BANDS_M = (0.5, 0.75, 1.0, 1.25)
+"""Edges of the depth bands of :attr:`FingertipMetrics.recall_by_depth`, metres."""
+
+
+def depth_band_names(edges_m: Sequence[float] = DEPTH_BANDS_M) -> tuple[str, ...]:
+    """``("0-0.5 m", "0.5-0.75 m", ..., "1.25+ m")`` for the band edges."""
+    bounds = ["0", *(f"{edge:g}" for edge in edges_m)]
+    return tuple(f"{a}-{b} m" for a, b in itertools.pairwise(bounds)) + (f"{bounds[-1]}+ m",)
+
+
+def recall_by_depth(
+    depths_m: ArrayLike, found: ArrayLike, edges_m: Sequence[float] = DEPTH_BANDS_M
+) -> dict[str, dict[str, float]]:
+    """Count and recall of annotated tips per depth band.
+
+    Parameters
+    ----------
+    depths_m : (N,) float
+        Camera-frame z of each annotated tip, metres.
+    found : (N,) bool
+        Whether a detection matched it.
+    edges_m : sequence of float
+        Band edges, metres, increasing.
+
+    Returns
+    -------
+    dict
+        ``{band name: {"tips": count, "recall_15mm": share or NaN}}`` in band order.
+    """
+    depths = as_array("depths_m", depths_m, (None,), np.float64, kind="fiu")
+    hits = as_array("found", found, (len(depths),), bool, kind="b")
+    band = np.searchsorted(np.asarray(edges_m, dtype=np.float64), depths, side="right")
+    return {
+        name: {
+            "tips": int(np.sum(band == k)),
+            "recall_15mm": _safe_ratio(int(np.sum(hits[band == k])), int(np.sum(band == k))),
+        }
+        for k, name in enumerate(depth_band_names(edges_m))
+    }
+
+
 @dataclass(frozen=True)
 class FingertipMetrics:
     """Detection scores, pooled over all frames.
@@ -154,6 +196,9 @@ class FingertipMetrics:
     missed_15mm, missed_10px : MissCauseCounts or None
         The annotated tips no detection matches within 15 mm (3D) or 10 px, by cause;
         None when the causes were not given.
+    recall_by_depth : dict
+        Per band of the annotated tips' depth (:data:`DEPTH_BANDS_M`, named like
+        ``"0.5-0.75 m"``): ``{"tips": count, "recall_15mm": share}`` (NaN if none).
     """
 
     frames: int
@@ -168,6 +213,7 @@ class FingertipMetrics:
     ms_per_frame: float = math.nan
     missed_15mm: MissCauseCounts | None = None
     missed_10px: MissCauseCounts | None = None
+    recall_by_depth: dict[str, dict[str, float]] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         """The metrics as a JSON-ready dict (the miss counts as nested dicts)."""
@@ -428,6 +474,8 @@ def fingertip_metrics(
     errors_ungated: list[float] = []
     missed_3d: list[MissCause | None] = []
     missed_2d: list[MissCause | None] = []
+    tip_depths: list[float] = []
+    tip_found: list[bool] = []
     for k, (frame_dets, frame_m, frame_px) in enumerate(
         zip(detections, tips_m, tips_px, strict=True)
     ):
@@ -444,9 +492,11 @@ def fingertip_metrics(
         matched_3d += rows.size
         found_2d = match_frame_2d(uv, frame_px, gate_px=gate_2d_px)[0]
         matched_2d += int(found_2d.sum())
+        found_3d = np.zeros(annotated.size, dtype=bool)
+        found_3d[np.flatnonzero(annotated)[cols]] = True
+        tip_depths.extend(frame_m[annotated, 2].tolist())
+        tip_found.extend(found_3d[annotated].tolist())
         if causes is not None:
-            found_3d = np.zeros(annotated.size, dtype=bool)
-            found_3d[np.flatnonzero(annotated)[cols]] = True
             missed_3d.extend(causes[k][t] for t in np.flatnonzero(annotated & ~found_3d).tolist())
             missed_2d.extend(causes[k][t] for t in np.flatnonzero(annotated & ~found_2d).tolist())
         if distance_2d.size:
@@ -465,6 +515,7 @@ def fingertip_metrics(
         ms_per_frame=ms_per_frame,
         missed_15mm=None if causes is None else MissCauseCounts.of(missed_3d),
         missed_10px=None if causes is None else MissCauseCounts.of(missed_2d),
+        recall_by_depth=recall_by_depth(tip_depths, np.array(tip_found, dtype=bool)),
     )
 
 

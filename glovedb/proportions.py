@@ -139,7 +139,9 @@ def proportioned_skeleton(skeleton: Skeleton, proportions: HandProportions) -> S
     )
 
 
-def proportioned_mesh(mesh: HandMesh, proportions: HandProportions) -> HandMesh:
+def proportioned_mesh(
+    mesh: HandMesh, proportions: HandProportions, *, thickness: float = 1.0
+) -> HandMesh:
     """The model's mesh re-rested for a personal hand (module docstring).
 
     Parameters
@@ -147,13 +149,20 @@ def proportioned_mesh(mesh: HandMesh, proportions: HandProportions) -> HandMesh:
     mesh : HandMesh
         The model's.
     proportions : HandProportions
+    thickness : float
+        Extra scale of every bone's local z axis (palm and finger thickness, across
+        the palm plane), 0.5-2; it moves no joint, so the skeleton is unchanged by it.
+        Not one of the tracked proportions: for rendering varied hands.
 
     Returns
     -------
     HandMesh
         Same faces and weights; the model's mesh itself when every factor is 1.
     """
-    if proportions.is_model:
+    low, high = FACTOR_RANGE
+    if not low <= thickness <= high:
+        raise ValueError(f"thickness: expected a factor in {low}-{high}, got {thickness}")
+    if proportions.is_model and thickness == 1.0:
         return mesh
     skeleton = proportioned_skeleton(mesh.skeleton, proportions)
     rest = np.zeros((2, N_JOINTS))
@@ -161,7 +170,7 @@ def proportioned_mesh(mesh: HandMesh, proportions: HandProportions) -> HandMesh:
         forward_kinematics(rest[:1], s).bone_transforms[0] for s in (mesh.skeleton, skeleton)
     )
     stretch = np.tile(np.eye(4), (N_BONES, 1, 1))
-    stretch[:, [0, 1, 2], [0, 1, 2]] = bone_scales(proportions)
+    stretch[:, [0, 1, 2], [0, 1, 2]] = bone_scales(proportions) * [1.0, 1.0, thickness]
     moves = (personal_rest @ stretch @ np.linalg.inv(model_rest))[:, :3, :]  # (16, 3, 4)
     blended = (mesh.weights.astype(np.float64) @ moves.reshape(N_BONES, 12)).reshape(-1, 3, 4)
     vertices = np.einsum("vij,vj->vi", blended[..., :3], mesh.rest_vertices_m) + blended[..., 3]

@@ -116,3 +116,18 @@ def test_bad_pose_arguments_raise(renderer):
         renderer.render(np.zeros(20), np.eye(4), [0, 0, 0.5])
     with pytest.raises(ValueError, match="posture_rad"):
         renderer.render(np.zeros(19), np.eye(3), [0, 0, 0.5])
+
+
+def test_another_mesh_of_the_same_topology_renders_in_its_place(renderer):
+    from glovedb.proportions import HandProportions, proportioned_mesh
+
+    view = named_view("back", 0.5, renderer.mesh.skeleton.hand_length_m)
+    own = renderer.render_labels(named_posture("open"), *view)
+    longer = proportioned_mesh(renderer.mesh, HandProportions(finger_length=(1.2,) * 5))
+    other = renderer.render_labels(named_posture("open"), *view, mesh=longer)
+    assert np.count_nonzero(other.depth_m) > np.count_nonzero(own.depth_m)
+    again = renderer.render_labels(named_posture("open"), *view)  # the renderer's own again
+    np.testing.assert_array_equal(again.depth_m, own.depth_m)
+    wrong = HandMesh(longer.skeleton, longer.rest_vertices_m, longer.faces[::-1], longer.weights)
+    with pytest.raises(ValueError, match="mesh: expected the renderer's mesh topology"):
+        renderer.render_labels(named_posture("open"), *view, mesh=wrong)

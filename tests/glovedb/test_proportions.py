@@ -55,6 +55,20 @@ def test_finger_factors_lengthen_their_finger_only(mesh):
     )
 
 
+def test_thickness_scales_across_the_palm_plane_only(mesh):
+    thicker = proportioned_mesh(mesh, HandProportions(), thickness=1.3)
+    np.testing.assert_array_equal(thicker.skeleton.offsets_m, mesh.skeleton.offsets_m)
+    np.testing.assert_array_equal(thicker.faces, mesh.faces)
+    # The open hand lies in the palm plane (z = 0 for the four fingers' bones), so
+    # every vertex moves away from it by the factor, except near the tilted thumb.
+    before, after = mesh.rest_vertices_m, thicker.rest_vertices_m
+    span = [np.ptp(v[:, 2]) for v in (before, after)]
+    assert 1.2 * span[0] < span[1] < 1.31 * span[0]
+    np.testing.assert_allclose(np.ptp(after[:, 1]), np.ptp(before[:, 1]), rtol=1e-3)
+    with pytest.raises(ValueError, match="thickness"):
+        proportioned_mesh(mesh, HandProportions(), thickness=0.3)
+
+
 def test_palm_width_moves_the_finger_bases_apart():
     skeleton = make_skeleton()
     wide = proportioned_skeleton(skeleton, HandProportions(palm_width=1.2))
