@@ -11,6 +11,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fingertips.assignment import FINGER_NAMES, assign_detections
+from fingertips.candidates import (
+    CANDIDATE_SOURCES,
+    CandidateSource,
+    FrameCandidates,
+    candidate_features,
+    forest_candidates,
+    merge_candidates,
+)
 from fingertips.features import (
     backproject,
     foreground_pixels,
@@ -23,6 +31,7 @@ from fingertips.features import (
     stride_for_spacing,
 )
 from fingertips.forest import FingertipForest, apply_probe_image, predict_leaves
+from fingertips.geodesic import geodesic_candidates
 from fingertips.heatmap import (
     HAND_BAND_M,
     HAND_DEPTH_RANGE_M,
@@ -30,10 +39,9 @@ from fingertips.heatmap import (
     heatmap_peaks,
 )
 from fingertips.segmentation import SEGMENTATION_METHODS, SegmentationMethod, segment_hand
-from fingertips.verify import peak_features, verify_peaks
+from fingertips.verify import verify_peaks
 from fingertips.voting import (
     DEFAULT_VOTING,
-    Peaks,
     Votes,
     VotingConfig,
     cast_votes,
@@ -64,8 +72,10 @@ class Detection:
         (:mod:`fingertips.verify`, or the heatmap's verifier); None if the
         model has no verifier.
     source : str
-        ``"forest"`` (a vote peak) or ``"heatmap"`` (a peak of the whole-hand heatmap,
-        :mod:`fingertips.heatmap`).
+        ``"forest"`` (a vote peak, also when the geodesic stage proposed it too),
+        ``"geodesic"`` (a geodesic finger candidate no vote peak was near,
+        :mod:`fingertips.candidates`) or ``"heatmap"`` (a peak of the whole-hand
+        heatmap, :mod:`fingertips.heatmap`).
     """
 
     u_px: float
@@ -118,6 +128,13 @@ class DetectorConfig:
         within ``depth_band_m`` behind the nearest surface; ``"surface"``, bare-hand
         segmentation (:func:`fingertips.segmentation.segment_hand`: support planes
         removed, the nearest connected surface, the forearm cut), then the band.
+    candidates : {"forest", "union"}
+        What the verifier scores (:mod:`fingertips.candidates`): the forest's vote
+        peaks, or those and the geodesic finger candidates of the hand depth
+        (:func:`fingertips.geodesic.geodesic_candidates`), duplicates within
+        ``voting.bandwidth_m`` merged. Detections closer than
+        ``voting.min_separation_m`` to a more probable one (a stronger one without
+        the verifier) are dropped.
     voting : VotingConfig
     """
 
@@ -129,10 +146,12 @@ class DetectorConfig:
     min_tip_probability: float = 0.0
     heatmap_min_probability: float = 0.0
     segmentation: SegmentationMethod = "band"
+    candidates: CandidateSource = "forest"
     voting: VotingConfig = DEFAULT_VOTING
 
     def __post_init__(self) -> None:
         check_choice("segmentation", self.segmentation, SEGMENTATION_METHODS)
+        check_choice("candidates", self.candidates, CANDIDATE_SOURCES)
         if not 0 < self.c_thr < math.inf:
             raise ValueError(f"c_thr: expected a positive, finite threshold, got {self.c_thr}")
         if self.stride < 1:
@@ -294,12 +313,18 @@ def _frame_votes(
 
 def _candidates(
     depth_m: ArrayLike, camera: NDArray[np.float64], model: FingertipForest, config: DetectorConfig
-) -> tuple[Peaks, NDArray[np.float32], NDArray[np.float32]]:
+) -> tuple[FrameCandidates, NDArray[np.float32], NDArray[np.float32]]:
     """:func:`candidate_peaks` and the hand depth they come from."""
     votes, probes, masked = _frame_votes(depth_m, camera, model, config)
     peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
-    features = peak_features(peaks, votes, probes, camera, bandwidth_m=config.voting.bandwidth_m)
-    return peaks, features, masked
+    bandwidth = config.voting.bandwidth_m
+    if config.candidates == "union":
+        geodesic = geodesic_candidates(masked, camera)
+        candidates = merge_candidates(peaks, geodesic, votes, bandwidth_m=bandwidth)
+    else:
+        candidates = forest_candidates(peaks)
+    features = candidate_features(candidates, votes, probes, camera, bandwidth_m=bandwidth)
+    return candidates, features, masked
 
 
 def candidate_peaks(
@@ -308,8 +333,12 @@ def candidate_peaks(
     model: FingertipForest,
     *,
     config: DetectorConfig = DEFAULT_DETECTOR,
-) -> tuple[Peaks, NDArray[np.float32]]:
-    """Vote peaks above ``config.c_thr`` and their verifier features.
+) -> tuple[FrameCandidates, NDArray[np.float32]]:
+    """The frame's candidates and their verifier features.
+
+    The candidates are the vote peaks above ``config.c_thr`` and, with
+    ``config.candidates`` "union", the geodesic finger candidates
+    (:func:`fingertips.candidates.merge_candidates`).
 
     Parameters
     ----------
@@ -322,10 +351,10 @@ def candidate_peaks(
 
     Returns
     -------
-    peaks : Peaks
+    candidates : FrameCandidates
         Strongest first.
-    features : (K, len(PEAK_FEATURES)) float32
-        :func:`fingertips.verify.peak_features` of the peaks.
+    features : (K, len(UNION_FEATURES)) float32
+        :func:`fingertips.candidates.candidate_features` of the candidates.
     """
     return _candidates(depth_m, intrinsics_array(intrinsics), model, config)[:2]
 
@@ -336,8 +365,8 @@ def verified_candidates(
     model: FingertipForest,
     *,
     config: DetectorConfig = DEFAULT_DETECTOR,
-) -> tuple[Peaks, NDArray[np.float32], NDArray[np.float32] | None]:
-    """Candidate peaks with their verifier probabilities: what the heatmap stage reads.
+) -> tuple[FrameCandidates, NDArray[np.float32], NDArray[np.float32] | None]:
+    """Candidates with their verifier probabilities: what the heatmap stage reads.
 
     Parameters
     ----------
@@ -350,8 +379,8 @@ def verified_candidates(
 
     Returns
     -------
-    peaks : Peaks
-        Every candidate above ``config.c_thr``, strongest first.
+    candidates : FrameCandidates
+        Every candidate (:func:`candidate_peaks`), strongest first.
     probability : (K,) float32
         Their verifier probabilities.
     hand_depth_m : (H, W) float32 or None
@@ -419,15 +448,22 @@ def detect_fingertips(
             "trained with a [heatmap] table"
         )
     depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
-    if model.verifier is None:
+    if model.verifier is None and config.candidates == "forest":
         votes = _frame_votes(depth, camera, model, config)[0]
         peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
-        detections = _forest_detections(peaks, None, camera)
+        detections = _candidate_detections(forest_candidates(peaks), None, camera)
+    elif model.verifier is None:
+        candidates = _candidates(depth, camera, model, config)[0]
+        keep = _separated(candidates, candidates.confidences, config.voting.min_separation_m)
+        detections = _candidate_detections(candidates, None, camera, keep)
     else:
         candidates, probability, hand = verified_candidates(depth, camera, model, config=config)
-        keep = probability >= config.min_tip_probability
-        peaks = Peaks(candidates.positions_m[keep], candidates.confidences[keep])
-        detections = _forest_detections(peaks, probability[keep], camera)
+        # With the verifier off (min_tip_probability 0) the vote weight ranks, as without one.
+        rank_by = probability if config.min_tip_probability > 0 else candidates.confidences
+        keep = (probability >= config.min_tip_probability) & _separated(
+            candidates, rank_by, config.voting.min_separation_m
+        )
+        detections = _candidate_detections(candidates, probability, camera, keep)
         if config.heatmap_min_probability > 0 and model.heatmap is not None:
             detections += _heatmap_detections(
                 depth, camera, model.heatmap, config, candidates, probability, detections, hand
@@ -445,22 +481,44 @@ def detect_fingertips(
     )
 
 
-def _forest_detections(
-    peaks: Peaks, tip_probability: NDArray[np.float32] | None, camera: NDArray[np.float64]
+def _separated(
+    candidates: FrameCandidates, score: NDArray[np.float32], separation_m: float
+) -> NDArray[np.bool_]:
+    """Whether each candidate lies ``separation_m`` or farther from every candidate of a
+    larger score (ties: the earlier one) that is itself kept, ``(K,)`` bool.
+
+    Vote peaks are already that far apart; a geodesic candidate just beyond the merge
+    radius of a peak is not."""
+    keep = np.ones(len(candidates), bool)
+    order = np.argsort(-score, kind="stable")
+    for rank, k in enumerate(order):
+        earlier = order[:rank][keep[order[:rank]]]
+        gaps = np.linalg.norm(candidates.positions_m[earlier] - candidates.positions_m[k], axis=1)
+        keep[k] = not (gaps < separation_m).any()
+    return keep
+
+
+def _candidate_detections(
+    candidates: FrameCandidates,
+    tip_probability: NDArray[np.float32] | None,
+    camera: NDArray[np.float64],
+    keep: NDArray[np.bool_] | None = None,
 ) -> tuple[Detection, ...]:
-    """Vote peaks (with their verifier probabilities, if any) as detections."""
-    uv = project(peaks.positions_m.astype(np.float64), camera)
+    """The kept candidates (with their verifier probabilities, if any) as detections."""
+    uv = project(candidates.positions_m.astype(np.float64), camera)
+    index = np.arange(len(candidates)) if keep is None else np.flatnonzero(keep)
     return tuple(
         Detection(
             u_px=float(uv[k, 0]),
             v_px=float(uv[k, 1]),
-            x_m=float(peaks.positions_m[k, 0]),
-            y_m=float(peaks.positions_m[k, 1]),
-            z_m=float(peaks.positions_m[k, 2]),
-            confidence=float(peaks.confidences[k]),
+            x_m=float(candidates.positions_m[k, 0]),
+            y_m=float(candidates.positions_m[k, 1]),
+            z_m=float(candidates.positions_m[k, 2]),
+            confidence=float(candidates.confidences[k]),
             tip_probability=None if tip_probability is None else float(tip_probability[k]),
+            source="forest" if candidates.from_forest[k] else "geodesic",
         )
-        for k in range(peaks.confidences.size)
+        for k in index
     )
 
 
@@ -469,7 +527,7 @@ def _heatmap_detections(
     camera: NDArray[np.float64],
     stage: HeatmapStage,
     config: DetectorConfig,
-    candidates: Peaks,
+    candidates: FrameCandidates,
     candidate_probability: NDArray[np.float32],
     forest_detections: tuple[Detection, ...],
     hand_depth_m: NDArray[np.float32] | None,
@@ -556,7 +614,11 @@ def name_fingers(
     if any(d.source == "heatmap" for d in detections) and not heatmap_min_probability > 0:
         raise ValueError("heatmap_min_probability: needed to weigh the heatmap's detections")
     if verified:  # each probability over the threshold that kept it
-        thresholds = {"forest": min_tip_probability, "heatmap": heatmap_min_probability}
+        thresholds = {
+            "forest": min_tip_probability,
+            "geodesic": min_tip_probability,
+            "heatmap": heatmap_min_probability,
+        }
         weights = np.array(
             [float(d.tip_probability or 0.0) for d in detections], dtype=np.float64
         ) / np.array([thresholds[d.source] for d in detections], dtype=np.float64)

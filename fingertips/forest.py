@@ -37,9 +37,10 @@ The peak verifier (:class:`fingertips.verify.PeakVerifier`) is stored as
 ``verifier_tree_roots``, ``verifier_node_feature``, ``verifier_node_threshold``,
 ``verifier_node_left``, ``verifier_node_right``, ``verifier_node_probability`` (the
 same node table layout) and ``verifier_features`` ``(F',) str``, the names of the peak
-features it was trained on; a model whose names differ from
-:data:`fingertips.verify.PEAK_FEATURES` is refused. Format 1 files (no
-verifier) are still read.
+features it was trained on: :data:`fingertips.verify.PEAK_FEATURES` (a verifier
+of the vote peaks) or :data:`fingertips.verify.UNION_FEATURES` (of the vote peaks and
+geodesic candidates, :mod:`fingertips.candidates`); a model with other names is
+refused. Format 1 files (no verifier) are still read.
 
 The heatmap stage (:class:`fingertips.heatmap.HeatmapStage`) is stored as
 ``heatmap_network_onnx`` ``(B,) uint8`` (the ONNX network), its verifier's node table
@@ -71,7 +72,7 @@ from fingertips.features import (
 )
 from fingertips.heatmap import HEAT_PEAK_FEATURES, HeatmapNetwork, HeatmapStage
 from fingertips.trees import FeatureLookup, check_tree_table, descend, descend_matrix
-from fingertips.verify import PEAK_FEATURES, PeakVerifier
+from fingertips.verify import VERIFIER_FEATURE_SETS, PeakVerifier
 from glovedb._files import write_atomically
 from glovedb._validate import as_array
 
@@ -211,7 +212,7 @@ def _verifier_arrays(verifier: PeakVerifier | None) -> dict[str, NDArray]:
     if verifier is None:
         return {}
     arrays = {f"verifier_{name}": getattr(verifier, name) for name in _VERIFIER_ARRAYS}
-    return {**arrays, "verifier_features": np.array(PEAK_FEATURES)}
+    return {**arrays, "verifier_features": np.array(verifier.feature_names)}
 
 
 _HEATMAP_TABLE = (
@@ -264,7 +265,7 @@ def _read_verifier(data: Any, path: str) -> PeakVerifier | None:
     if "verifier_tree_roots" not in data:
         return None
     names = tuple(str(name) for name in data["verifier_features"])
-    if names != PEAK_FEATURES:
+    if names not in VERIFIER_FEATURE_SETS:
         raise ValueError(
             f"{path}: its peak verifier uses other peak features than this code; "
             "retrain the model (docs/fingertips.md)"
@@ -274,7 +275,8 @@ def _read_verifier(data: Any, path: str) -> PeakVerifier | None:
         **{
             name: data[f"verifier_{name}"].astype(kinds.get(name, np.int32))
             for name in _VERIFIER_ARRAYS
-        }
+        },
+        feature_names=names,
     )
 
 

@@ -39,7 +39,7 @@ from fingertips.data import (
     data_config_from_dict,
     read_config_tables,
 )
-from fingertips.detect import DetectorConfig, detector_config_from_dict
+from fingertips.detect import DetectorConfig, detector_config_from_dict, model_detector_config
 from fingertips.features import (
     backproject,
     foreground_pixels,
@@ -686,6 +686,8 @@ def _train_heatmap(
 ) -> FingertipForest:
     from fingertips.heatmap_training import train_heatmap
 
+    # The candidates the forest's verifier was trained on (its [verifier] table's).
+    detector = replace(recipe.detector, candidates=model_detector_config(forest).candidates)
     return train_heatmap(
-        forest, recipe.data, recipe.detector, heatmap, network_onnx=network, progress=progress
+        forest, recipe.data, detector, heatmap, network_onnx=network, progress=progress
     )

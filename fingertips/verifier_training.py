@@ -1,8 +1,10 @@
 """Training of the peak verifier (:mod:`fingertips.verify`) on rendered frames.
 
 The trained Hough forest runs on frames rendered like its training data but from
-another seed; every candidate peak (vote weight at least the detector's ``c_thr``) is
-described by :func:`fingertips.verify.peak_features` and labelled true when a
+another seed; every candidate (a vote peak with a vote weight of at least the
+detector's ``c_thr`` and, with ``candidates = "union"``, a geodesic finger candidate;
+:mod:`fingertips.candidates`) is described by
+:func:`fingertips.candidates.candidate_features` and labelled true when a
 one-to-one matching within ``match_radius_m`` pairs it with a visible fingertip (the
 rule by which ``glove fingertips eval`` counts a detection as correct). A
 scikit-learn random forest learns the label; it is exported to the plain arrays of
@@ -20,13 +22,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from sklearn.ensemble import RandomForestClassifier
 
+from fingertips.candidates import CANDIDATE_SOURCES, CandidateSource
 from fingertips.data import FingertipDataConfig
 from fingertips.detect import DetectorConfig, candidate_peaks
 from fingertips.evaluation import match_within
 from fingertips.forest import FingertipForest
 from fingertips.tree_export import pack_tree_table
-from fingertips.verify import PEAK_FEATURES, PeakVerifier
-from glovedb._validate import as_array, dataclass_from_table
+from fingertips.verify import PEAK_FEATURES, UNION_FEATURES, PeakVerifier
+from glovedb._validate import as_array, check_choice, dataclass_from_table
 
 
 @dataclass(frozen=True)
@@ -48,6 +51,11 @@ class VerifierTrainingConfig:
         Seeds the forest.
     n_jobs : int
         Worker processes for fitting.
+    candidates : {"forest", "union"}
+        The candidates the verifier is trained on and will score: the vote peaks
+        (over :data:`~fingertips.verify.PEAK_FEATURES`), or those and the geodesic
+        finger candidates (over :data:`~fingertips.verify.UNION_FEATURES`). The model
+        records it as the detector's ``candidates``.
     """
 
     n_images: int = 1500
@@ -58,8 +66,10 @@ class VerifierTrainingConfig:
     min_samples_leaf: int = 5
     seed: int = 0
     n_jobs: int = 2
+    candidates: CandidateSource = "union"
 
     def __post_init__(self) -> None:
+        check_choice("candidates", self.candidates, CANDIDATE_SOURCES)
         for name in ("n_images", "n_trees", "max_depth", "min_samples_leaf", "n_jobs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: expected at least 1, got {getattr(self, name)}")
@@ -120,16 +130,16 @@ def collect_peak_samples(
 
     Returns
     -------
-    features : (N, len(PEAK_FEATURES)) float32
+    features : (N, len(UNION_FEATURES)) float32
     labels : (N,) bool
     """
     features, labels = [], []
     for depth_m, intrinsics, tips_m in images:
-        peaks, frame_features = candidate_peaks(depth_m, intrinsics, forest, config=detector)
+        candidates, frame_features = candidate_peaks(depth_m, intrinsics, forest, config=detector)
         features.append(frame_features)
-        labels.append(label_peaks(peaks.positions_m, tips_m, radius_m=radius_m))
+        labels.append(label_peaks(candidates.positions_m, tips_m, radius_m=radius_m))
     if not features:
-        return np.zeros((0, len(PEAK_FEATURES)), np.float32), np.zeros(0, bool)
+        return np.zeros((0, len(UNION_FEATURES)), np.float32), np.zeros(0, bool)
     return np.concatenate(features), np.concatenate(labels)
 
 
@@ -138,12 +148,28 @@ def fit_verifier(
 ) -> PeakVerifier:
     """Fit the random forest on labelled peaks and export it as a :class:`PeakVerifier`.
 
+    Parameters
+    ----------
+    features : (N, len(UNION_FEATURES)) or (N, len(PEAK_FEATURES)) float32
+        From :func:`collect_peak_samples`; a ``"forest"`` verifier uses only the
+        leading :data:`~fingertips.verify.PEAK_FEATURES` columns, a ``"union"``
+        verifier needs all.
+    labels : (N,) bool
+    config : VerifierTrainingConfig
+
     Raises
     ------
     ValueError
         Unless there are both true and false peaks.
     """
-    values = as_array("features", features, (None, len(PEAK_FEATURES)), np.float32, kind="fiu")
+    values = as_array("features", features, (None, None), np.float32, kind="fiu")
+    names = verifier_features(config.candidates)
+    if values.shape[1] not in (len(names), len(UNION_FEATURES)):
+        raise ValueError(
+            f"features: expected (N, {len(names)}) or (N, {len(UNION_FEATURES)}), "
+            f"got {values.shape}"
+        )
+    values = values[:, : len(names)]
     truth = as_array("labels", labels, (values.shape[0],), bool)
     if truth.all() or not truth.any():
         raise ValueError("labels: need both true and false fingertip peaks to train a verifier")
@@ -156,17 +182,24 @@ def fit_verifier(
         n_jobs=config.n_jobs,
     )
     classifier.fit(values, truth)
-    return export_verifier(classifier)
+    return export_verifier(classifier, names)
 
 
-def export_verifier(classifier: RandomForestClassifier) -> PeakVerifier:
-    """A fitted binary scikit-learn classifier over :data:`PEAK_FEATURES` as plain arrays."""
-    if classifier.n_features_in_ != len(PEAK_FEATURES):
+def verifier_features(candidates: CandidateSource) -> tuple[str, ...]:
+    """The feature names of a verifier of ``candidates`` (see :class:`VerifierTrainingConfig`)."""
+    return UNION_FEATURES if candidates == "union" else PEAK_FEATURES
+
+
+def export_verifier(
+    classifier: RandomForestClassifier, feature_names: tuple[str, ...] = PEAK_FEATURES
+) -> PeakVerifier:
+    """A fitted binary scikit-learn classifier over ``feature_names`` as plain arrays."""
+    if classifier.n_features_in_ != len(feature_names):
         raise ValueError(
-            f"classifier: expected {len(PEAK_FEATURES)} peak features, "
+            f"classifier: expected {len(feature_names)} peak features, "
             f"got {classifier.n_features_in_}"
         )
-    return PeakVerifier(**pack_tree_table(classifier))
+    return PeakVerifier(**pack_tree_table(classifier), feature_names=feature_names)
 
 
 def train_verifier(
@@ -187,7 +220,8 @@ def train_verifier(
         The forest's training data settings; seed and number of frames come from
         ``config``.
     detector : DetectorConfig
-        Detection settings; its ``c_thr`` and voting make the candidate peaks.
+        Detection settings; its ``c_thr`` and voting make the candidate peaks (its
+        ``candidates`` is replaced by ``config.candidates``).
     config : VerifierTrainingConfig
     progress : bool
         Show a progress bar (on a terminal).
@@ -201,6 +235,7 @@ def train_verifier(
 
     from fingertips.data import generate_examples
 
+    detector = replace(detector, candidates=config.candidates)
     frames = replace(data, seed=data.seed + config.seed_offset, n_images=config.n_images)
     images = (
         (example.depth_m, example.intrinsics, example.tips_m)

@@ -24,6 +24,10 @@ metric):
   peak), the longest arc of hand, and the mean depth of the hand probes relative to
   the peak. A fingertip is a narrow arc of hand at every radius; a knuckle of a
   curled finger has hand on a half-circle.
+
+The geodesic stage's finger candidates are described the same way when they join the
+vote peaks (:mod:`fingertips.candidates`), and :data:`GEODESIC_FEATURES` follow: a
+verifier trained on :data:`UNION_FEATURES` scores both kinds.
 """
 
 from __future__ import annotations
@@ -68,6 +72,24 @@ PEAK_FEATURES: tuple[str, ...] = (
     for name in ("background", "hand_arc", "hand_depth_m")
 )
 """Names of the columns of :func:`peak_features`, in order (recorded in the model)."""
+
+GEODESIC_FEATURES: tuple[str, ...] = (
+    "from_forest",
+    "from_geodesic",
+    "geodesic_reach_m",
+    "geodesic_width_m",
+    "palm_distance_m",
+    "palm_radius_m",
+)
+"""Names of the columns :func:`fingertips.candidates.candidate_features` appends to
+:data:`PEAK_FEATURES`: where a candidate came from and the geodesic stage's view of it."""
+
+UNION_FEATURES: tuple[str, ...] = PEAK_FEATURES + GEODESIC_FEATURES
+"""All columns of :func:`fingertips.candidates.candidate_features`, in order."""
+
+VERIFIER_FEATURE_SETS: tuple[tuple[str, ...], ...] = (PEAK_FEATURES, UNION_FEATURES)
+"""The feature lists a verifier can be trained on: the vote peaks' own (the first
+verifiers), or those and the geodesic columns."""
 
 
 def _members(
@@ -149,10 +171,16 @@ def peak_features(
 ) -> NDArray[np.float32]:
     """Describe each vote peak for the verifier (columns: :data:`PEAK_FEATURES`).
 
+    Any candidate point can be described so, also one without votes near it (a
+    geodesic candidate): its vote columns and the voters' offset are then 0, and
+    ``wide_weight_ratio`` is the weight within twice the bandwidth itself.
+
     Parameters
     ----------
     peaks : Peaks
-        From :func:`fingertips.voting.find_peaks` on ``votes``, strongest first.
+        Candidate points and their confidences (the rank column orders them by
+        confidence, ties in the given order), such as
+        :func:`fingertips.voting.find_peaks` gives on ``votes``.
     votes : Votes
     probes_m : (H + 2, W + 2) float32
         :func:`~fingertips.features.probe_image` of the hand depth the votes
@@ -172,13 +200,12 @@ def peak_features(
     k = centres.shape[0]
     if k == 0:
         return np.zeros((0, len(PEAK_FEATURES)), np.float32)
-    if votes.weights.size == 0:
-        raise ValueError("votes: peaks need the votes they were found in")
     index = cKDTree(votes.positions_m)
     flat, owner = _members(index, centres, bandwidth_m)
     weight = votes.weights[flat].astype(np.float64)
     confidence = np.bincount(owner, weight, k)
-    safe = np.maximum(confidence, 1e-12)
+    voted = confidence > 0
+    safe = np.where(voted, confidence, 1.0)
     count = np.bincount(owner, minlength=k).astype(np.float64)
     probability = votes.probability[flat].astype(np.float64)
     max_probability = np.zeros(k)
@@ -194,7 +221,7 @@ def peak_features(
         )
         / safe[:, None]
     )
-    voter_offset = voter_centroid - centres
+    voter_offset = np.where(voted[:, None], voter_centroid - centres, 0.0)
     uv = np.rint(project(centres, camera)).astype(np.int64)
     surface = read_probes(probes, uv[:, 0], uv[:, 1]).astype(np.float64)
     separation = np.linalg.norm(centres[:, None] - centres[None], axis=2)
@@ -208,8 +235,8 @@ def peak_features(
         wide / safe,
         centres[:, 2],
         np.clip(surface - centres[:, 2], -_GAP_CLIP_M, _GAP_CLIP_M),
-        np.arange(k, dtype=np.float64),
-        confidence / confidence.max(),
+        _ranks(peaks.confidences),
+        confidence / max(float(confidence.max()), 1e-12),
         np.minimum(separation.min(axis=1), _FAR_PEAK_M),
         1000.0 * np.linalg.norm(voter_offset, axis=1),
         1000.0 * voter_offset[:, 2],
@@ -220,13 +247,22 @@ def peak_features(
     return features.astype(np.float32)
 
 
+def _ranks(confidences: NDArray[np.float32]) -> NDArray[np.float64]:
+    """Rank ``(K,)`` of each confidence, 0 for the largest; ties in the given order."""
+    ranks = np.empty(confidences.size, np.float64)
+    ranks[np.argsort(-confidences, kind="stable")] = np.arange(confidences.size)
+    return ranks
+
+
 @dataclass(frozen=True)
 class PeakVerifier:
-    """A classification forest over :data:`PEAK_FEATURES`, as plain arrays.
+    """A classification forest over peak features, as plain arrays.
 
     The node table is that of :mod:`fingertips.trees`; ``node_probability``
     ``(n,) float32`` is the share of true fingertip peaks among the training peaks
-    reaching each node.
+    reaching each node. ``feature_names`` is one of :data:`VERIFIER_FEATURE_SETS`:
+    :data:`PEAK_FEATURES` (a verifier of the forest's vote peaks) or
+    :data:`UNION_FEATURES` (also the geodesic columns).
     """
 
     tree_roots: NDArray[np.int32]
@@ -235,9 +271,15 @@ class PeakVerifier:
     node_left: NDArray[np.int32]
     node_right: NDArray[np.int32]
     node_probability: NDArray[np.float32]
+    feature_names: tuple[str, ...] = PEAK_FEATURES
 
     def __post_init__(self) -> None:
-        check_tree_table(self, len(PEAK_FEATURES))
+        if tuple(self.feature_names) not in VERIFIER_FEATURE_SETS:
+            raise ValueError(
+                "feature_names: expected PEAK_FEATURES or UNION_FEATURES of "
+                f"fingertips.verify, got {len(self.feature_names)} other names"
+            )
+        check_tree_table(self, len(self.feature_names))
         as_array("node_probability", self.node_probability, (self.node_feature.shape[0],))
 
     @property
@@ -252,9 +294,15 @@ def verify_peaks(verifier: PeakVerifier, features: ArrayLike) -> NDArray[np.floa
     Parameters
     ----------
     verifier : PeakVerifier
-    features : (K, len(PEAK_FEATURES)) float32
-        From :func:`peak_features`.
+    features : (K, F) float32
+        :data:`UNION_FEATURES` columns (:func:`fingertips.candidates.candidate_features`)
+        or only the verifier's own (``len(verifier.feature_names)``), which lead them.
     """
-    values = as_array("features", features, (None, len(PEAK_FEATURES)), np.float32, kind="fiu")
-    leaves = descend_matrix(verifier, values)
+    values = as_array("features", features, (None, None), np.float32, kind="fiu")
+    n = len(verifier.feature_names)
+    if values.shape[1] not in (n, len(UNION_FEATURES)):
+        raise ValueError(
+            f"features: expected (K, {n}) or (K, {len(UNION_FEATURES)}), got {values.shape}"
+        )
+    leaves = descend_matrix(verifier, np.ascontiguousarray(values[:, :n]))
     return verifier.node_probability[leaves].mean(axis=1).astype(np.float32)

@@ -239,6 +239,12 @@ def _add_model_options(parser: argparse.ArgumentParser) -> None:
         "(bare hand: tables and walls removed, nearest connected surface, forearm cut); "
         "default: the model's",
     )
+    parser.add_argument(
+        "--candidates",
+        choices=("forest", "union"),
+        help="what the verifier scores: 'forest' (the vote peaks) or 'union' (and the "
+        "geodesic finger candidates); default: the model's",
+    )
 
 
 def _positive(name: str, value: int | None) -> int | None:
@@ -436,6 +442,8 @@ def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
         config = replace(config, stride=args.stride, pixel_spacing_m=0.0)
     if args.segmentation is not None:
         config = replace(config, segmentation=args.segmentation)
+    if args.candidates is not None:
+        config = replace(config, candidates=args.candidates)
     return model, config
 
 
@@ -594,6 +602,7 @@ def run_eval(args: argparse.Namespace) -> int:
             "15mm": metrics.missed_15mm.as_dict(),
             "10px": metrics.missed_10px.as_dict(),
         },
+        "recall_by_depth": metrics.recall_by_depth,
         "annotations": name,
         "model": str(args.model or "default"),
         "detector": config.as_dict(),
@@ -619,7 +628,12 @@ def run_eval(args: argparse.Namespace) -> int:
         f"{metrics.error_2d_px_ungated:.1f} px\n"
         f"{metrics.ms_per_frame:.1f} ms per frame\n"
         f"missed within 15 mm by cause: {_cause_counts(metrics.missed_15mm.as_dict())}\n"
-        f"missed within 10 px by cause: {_cause_counts(metrics.missed_10px.as_dict())}",
+        f"missed within 10 px by cause: {_cause_counts(metrics.missed_10px.as_dict())}\n"
+        "recall (15 mm) by tip depth: "
+        + ", ".join(
+            f"{band} {scores['recall_15mm']:.3f} of {scores['tips']}"
+            for band, scores in metrics.recall_by_depth.items()
+        ),
         file=sys.stdout,
     )
     if guesses is not None:

@@ -52,3 +52,23 @@ def constant_verifier(probability: float) -> PeakVerifier:
         node_right=np.array([-1], np.int32),
         node_probability=np.array([probability], np.float32),
     )
+
+
+def render_named_hand(
+    renderer, posture: str, side: str, distance_m: float, noise: str = "none"
+):  # -> fingertips.data.FingertipExample (imported lazily: it needs the renderer)
+    """A rendered example of a named posture seen from the palm or the back, its middle
+    ``distance_m`` in front of the camera on the optical axis, fingers up."""
+    from fingertips.data import FingertipDataConfig, Scene, render_scene
+    from glovedb.postures import named_posture
+    from glovedb.views import HAND_CENTRE, pose_for_view
+
+    length = renderer.mesh.skeleton.hand_length_m
+    direction = np.array([0.0, 0.0, -1.0 if side == "palm" else 1.0])
+    rotation, translation = pose_for_view(
+        direction, distance_m, target_m=np.array(HAND_CENTRE) * length
+    )
+    scene = Scene(
+        named_posture(posture), rotation, translation, length, None, None, False, noise, False
+    )
+    return render_scene(renderer, scene, FingertipDataConfig(), np.random.default_rng(0))

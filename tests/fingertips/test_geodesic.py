@@ -7,6 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from fingertip_toys import render_named_hand
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
@@ -260,27 +261,11 @@ def test_score_candidates_counts_found_tips_per_band() -> None:
     assert all(row["recall"] == 1.0 and row["extra_per_frame"] == 1.0 for row in rows)
 
 
-def _render_open(renderer, posture: str, side: str, distance_m: float, noise: str = "none"):
-    from fingertips.data import FingertipDataConfig, Scene, render_scene
-    from glovedb.postures import named_posture
-    from glovedb.views import HAND_CENTRE, pose_for_view
-
-    length = renderer.mesh.skeleton.hand_length_m
-    direction = np.array([0.0, 0.0, -1.0 if side == "palm" else 1.0])
-    rotation, translation = pose_for_view(
-        direction, distance_m, target_m=np.array(HAND_CENTRE) * length
-    )
-    scene = Scene(
-        named_posture(posture), rotation, translation, length, None, None, False, noise, False
-    )
-    return render_scene(renderer, scene, FingertipDataConfig(), np.random.default_rng(0))
-
-
 @pytest.mark.gl
 @pytest.mark.parametrize("side", ["palm", "back"])
 @pytest.mark.parametrize("distance_m", [0.3, 0.6, 1.0])
 def test_rendered_open_hand_gives_its_five_tips(renderer, side, distance_m) -> None:
-    example = _render_open(renderer, "open", side, distance_m)
+    example = render_named_hand(renderer, "open", side, distance_m)
     assert np.isfinite(example.tips_m).all()
     fingers = geodesic_candidates(example.depth_m, example.intrinsics).fingers()
     assert _nearest(fingers.points_m, example.tips_m).max() < 0.015
@@ -290,7 +275,7 @@ def test_rendered_open_hand_gives_its_five_tips(renderer, side, distance_m) -> N
 @pytest.mark.gl
 @pytest.mark.parametrize("distance_m", [0.3, 0.6, 1.0])
 def test_rendered_open_hand_with_sensor_noise(renderer, distance_m) -> None:
-    example = _render_open(renderer, "open", "palm", distance_m, noise="kinect_v1")
+    example = render_named_hand(renderer, "open", "palm", distance_m, noise="kinect_v1")
     fingers = geodesic_candidates(example.depth_m, example.intrinsics).fingers()
     assert _nearest(fingers.points_m, example.tips_m).max() < 0.015
     assert len(fingers) <= 5 + 4
@@ -299,7 +284,7 @@ def test_rendered_open_hand_with_sensor_noise(renderer, distance_m) -> None:
 @pytest.mark.gl
 @pytest.mark.parametrize("distance_m", [0.3, 0.6, 1.0])
 def test_rendered_fist_from_the_back_proposes_no_fingers(renderer, distance_m) -> None:
-    example = _render_open(renderer, "fist", "back", distance_m)
+    example = render_named_hand(renderer, "fist", "back", distance_m)
     found = geodesic_candidates(example.depth_m, example.intrinsics)
     assert len(found) >= 1  # the knuckles and the wrist are ends, but wide ones
     assert len(found.fingers()) <= 1  # at most the thumb's end

@@ -21,6 +21,7 @@ from fingertips.verifier_training import (
 from fingertips.verify import (
     PEAK_FEATURES,
     RING_PROBES,
+    UNION_FEATURES,
     peak_features,
     ring_features,
     verify_peaks,
@@ -102,7 +103,7 @@ def test_exported_verifier_equals_scikit_learn() -> None:
 
 
 def test_fit_verifier_needs_both_labels() -> None:
-    features = np.zeros((10, len(PEAK_FEATURES)), np.float32)
+    features = np.zeros((10, len(UNION_FEATURES)), np.float32)
     with pytest.raises(ValueError, match="both true and false"):
         fit_verifier(features, np.ones(10, bool), config=VerifierTrainingConfig())
 
@@ -158,7 +159,7 @@ def test_detection_keeps_the_peaks_the_verifier_accepts() -> None:
 def test_candidate_features_describe_the_bar_tip() -> None:
     depth, tip_m = bar_scene()
     peaks, features = candidate_peaks(depth, INTRINSICS, toy_forest(), config=STRIDE_1)
-    assert features.shape == (1, len(PEAK_FEATURES))
+    assert features.shape == (1, len(UNION_FEATURES))
     row = features[0]
     assert row[COLUMN["max_probability"]] == pytest.approx(1.0)
     assert row[COLUMN["ring10_background"]] > 0.7

@@ -116,6 +116,17 @@ def test_eval_segmentation_option_selects_the_hand_pixels(tmp_path: Path, capsys
     assert main([*argv[:-1], "glove"]) == 2
 
 
+@pytest.mark.parametrize("candidates", ["forest", "union"])
+def test_eval_candidates_option_selects_what_the_verifier_scores(
+    tmp_path: Path, capsys, candidates: str
+) -> None:
+    _write_folder(tmp_path)
+    argv = ["fingertips", "eval", str(tmp_path), "--json", "--candidates", candidates]
+    assert main(argv) == 0
+    assert json.loads(capsys.readouterr().out)["detector"]["candidates"] == candidates
+    assert main([*argv[:-1], "geodesic"]) == 2
+
+
 def test_eval_text_lists_the_misses_by_cause(tmp_path: Path, capsys) -> None:
     _write_folder(tmp_path)
     (tmp_path / "annotations.jsonl").write_text(  # a tip on the image border: missed
