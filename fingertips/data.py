@@ -702,6 +702,15 @@ FOREARM_LENGTH = 1.4
 """Length of the forearm from the wrist, in hand lengths."""
 
 
+def pixel_rays(shape: tuple[int, int], intrinsics: ArrayLike) -> NDArray[np.float64]:
+    """``(H, W, 3)`` rays ``(x / z, y / z, 1)`` through every pixel of an image of
+    ``shape`` with pinhole ``intrinsics`` ``(fx, fy, cx, cy)``: a point at depth ``z``
+    on a pixel's ray is ``z`` times its ray."""
+    fx, fy, cx, cy = (float(value) for value in np.asarray(intrinsics, dtype=np.float64))
+    v, u = np.indices(shape, dtype=np.float64)
+    return np.stack([(u - cx) / fx, (v - cy) / fy, np.ones(shape)], axis=-1)
+
+
 def forearm_depth(
     shape: tuple[int, int],
     intrinsics: NDArray[np.float64],
@@ -741,10 +750,8 @@ def forearm_depth(
     (H, W) float32
         Depth in metres, 0 where the ray misses the forearm.
     """
-    fx, fy, cx, cy = intrinsics
-    v, u = np.indices(shape, dtype=np.float64)
     # Rays z * (x, y, 1) in the forearm frame, scaled so the cross-section is a unit disc.
-    rays = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones(shape)], axis=-1) @ cam_R_forearm
+    rays = pixel_rays(shape, intrinsics) @ cam_R_forearm
     origin = -cam_R_forearm.T @ wrist_m
     half_x, half_z = (hand_length_m * a for a in half_axes)
     dx, dz = rays[..., 0] / half_x, rays[..., 2] / half_z
@@ -784,10 +791,7 @@ def object_depth(
     (H, W) float32
         Depth in metres, 0 where the ray misses the object.
     """
-    fx, fy, cx, cy = intrinsics
-    v, u = np.indices(shape, dtype=np.float64)
-    # Rays z * (x, y, 1): the ray parameter is the depth.
-    rays = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones(shape)], axis=-1)
+    rays = pixel_rays(shape, intrinsics)  # the ray parameter is the depth
     if nearby.kind == "ball":
         radius = float(nearby.half_extents_m[0])
         a = np.einsum("hwk,hwk->hw", rays, rays)
