@@ -48,7 +48,7 @@ from tracker.generative.energy.silhouette import silhouette_residuals
 from tracker.generative.energy.temporal import temporal_residuals
 from tracker.generative.model import N_PARAMS, HandPose, HandSamples, PosedHand
 from tracker.generative.observation import Observation
-from tracker.generative.solver import levenberg_marquardt
+from tracker.generative.solver import eliminated_information, levenberg_marquardt
 
 HIDDEN_EDGE_PX = 4.0
 """Pixels beyond the silhouette margin before a sample counts as hidden by an object."""
@@ -417,15 +417,11 @@ def fit_frame(
     if last[0][0] is not result.state:  # it was evaluated before a refused step
         evaluate(result.state)
     _, terms, quality, hand, jacobian = last[0]
-    information_after = None
-    if estimate_proportions:
-        normal = jacobian.T @ jacobian
-        pose_block = normal[:N_PARAMS, :N_PARAMS] + 1e-9 * np.eye(N_PARAMS)
-        cross = normal[:N_PARAMS, N_PARAMS:]
-        information_after = normal[N_PARAMS:, N_PARAMS:] - cross.T @ np.linalg.solve(
-            pose_block, cross
-        )
-        information_after = 0.5 * (information_after + information_after.T)
+    information_after = (
+        eliminated_information(jacobian.T @ jacobian, N_PARAMS, ridge=1e-9)
+        if estimate_proportions
+        else None
+    )
     return FrameFit(
         pose=result.state.pose,
         hand=hand,

@@ -110,3 +110,31 @@ def levenberg_marquardt(
         else:
             damping *= _GROW
     return SolverResult(state, energy, start_energy, done, converged)
+
+
+def eliminated_information(
+    normal: NDArray[np.float64], eliminated: int, *, ridge: float
+) -> NDArray[np.float64]:
+    """Information about the unknowns after the first ``eliminated`` ones, those
+    eliminated: the Schur complement ``C - B^T (A + ridge I)^-1 B`` of the normal
+    matrix ``[[A, B], [B^T, C]]`` (what the data says about the rest when the first
+    unknowns may take whatever value explains it best), symmetrised.
+
+    Parameters
+    ----------
+    normal : (K, K) float
+        ``J^T J``.
+    eliminated : int
+        How many leading unknowns to eliminate.
+    ridge : float
+        Added to the eliminated block's diagonal, so that unobserved unknowns do not
+        make it singular.
+
+    Returns
+    -------
+    (K - eliminated, K - eliminated) float64
+    """
+    block = normal[:eliminated, :eliminated] + ridge * np.eye(eliminated)
+    cross = normal[:eliminated, eliminated:]
+    information = normal[eliminated:, eliminated:] - cross.T @ np.linalg.solve(block, cross)
+    return np.asarray(0.5 * (information + information.T), dtype=np.float64)

@@ -41,6 +41,7 @@ from glovedb.hand_model import N_BONES, N_JOINTS
 from tracker.generative.energy.residuals import Residuals
 from tracker.generative.model import MOVES, N_PARAMS, PosedHand
 from tracker.generative.observation import Observation, look_up
+from tracker.generative.solver import eliminated_information
 
 NAME = "reference"
 _GLOBAL = N_PARAMS - N_JOINTS  # the pose step's rotation and translation come first
@@ -102,11 +103,7 @@ def posture_information(terms: Sequence[Residuals]) -> NDArray[np.float64]:
         Their Jacobians ``(M, 26)`` are stacked.
     """
     jacobian = np.concatenate([np.zeros((0, N_PARAMS))] + [t.jacobian for t in terms])
-    normal = jacobian.T @ jacobian
-    pose_block = normal[:_GLOBAL, :_GLOBAL] + 1e-12 * np.eye(_GLOBAL)
-    cross = normal[:_GLOBAL, _GLOBAL:]
-    information = normal[_GLOBAL:, _GLOBAL:] - cross.T @ np.linalg.solve(pose_block, cross)
-    return np.asarray(0.5 * (information + information.T), dtype=np.float64)
+    return eliminated_information(jacobian.T @ jacobian, _GLOBAL, ridge=1e-12)
 
 
 def reference_basis(
