@@ -8,11 +8,18 @@ signal's speed::
 
     cutoff = min_cutoff_hz + beta * |speed|,   alpha = 1 / (1 + 1 / (2 pi cutoff dt))
 
-applied per coordinate, with the speed itself low-passed at ``derivative_cutoff_hz``.
-:class:`PoseFilter` applies it to the 20 joint angles (beta per radian/s), the wrist
-position (per metre/s) and the rotation (as the rotation vector of the step from the
-last filtered rotation, per radian/s). Only the reported pose is filtered: the fit
-starts every frame from its own unfiltered solution.
+with the velocity itself low-passed at ``derivative_cutoff_hz``. :class:`PoseFilter`
+applies it to the 20 joint angles, each with its own speed (beta per radian/s), and to
+the wrist position (per metre/s) and the rotation (the rotation vector of the step
+from the last filtered rotation, per radian/s), each moving as one: their speed is the
+length of the low-passed velocity *vector*. Low-passing the signed velocity before
+taking its length matters: a still hand's noise moves the wrist a fraction of a
+millimetre each frame in random directions, which averages out in the velocity but
+not in its length; with the length low-passed (the speed of every step) that noise
+alone kept the cutoff high and the still wrist trembling, and with a speed per
+coordinate a hand moving mostly along x was filtered hard, that is lagged, along y
+and z. Only the reported pose is filtered: the fit starts every frame from its own
+unfiltered solution.
 """
 
 from __future__ import annotations
@@ -55,10 +62,19 @@ class OneEuroSettings:
 
 
 class OneEuroFilter:
-    """The One Euro filter over a vector of independent coordinates."""
+    """The One Euro filter over a vector of coordinates.
 
-    def __init__(self, settings: OneEuroSettings) -> None:
+    Parameters
+    ----------
+    settings : OneEuroSettings
+    vector : bool
+        One cutoff for all coordinates, from the length of the low-passed velocity
+        (a position); False gives each coordinate the cutoff of its own speed.
+    """
+
+    def __init__(self, settings: OneEuroSettings, *, vector: bool = False) -> None:
         self.settings = settings
+        self.vector = vector
         self._value: NDArray[np.float64] | None = None
         self._speed: NDArray[np.float64] | None = None
 
@@ -74,7 +90,8 @@ class OneEuroFilter:
         s = self.settings
         speed = (value - self._value) / dt_s
         self._speed += smoothing_factor(s.derivative_cutoff_hz, dt_s) * (speed - self._speed)
-        alpha = smoothing_factor(s.min_cutoff_hz + s.beta * np.abs(self._speed), dt_s)
+        size = np.linalg.norm(self._speed) if self.vector else np.abs(self._speed)
+        alpha = smoothing_factor(s.min_cutoff_hz + s.beta * size, dt_s)
         self._value = self._value + alpha * (value - self._value)
         return self._value.copy()
 
@@ -84,13 +101,15 @@ class PoseFilterSettings:
     """The One Euro settings of the three parts of a hand pose.
 
     Defaults: chosen on a rendered still hand (3 s, Kinect-like noise) and the moving
-    Tr1: keypoint jitter of the still hand 0.19 px / 0.27 mm RMS frame to frame
-    (unfiltered 0.59 / 0.80), Tr1's mean wrist error 0.89 mm (unfiltered 0.71).
+    Tr1-Tr5 (docs/RESULTS.md), tracked with open_pinch_power: keypoint jitter of the
+    still hand 0.18 px / 0.27 mm RMS frame to frame (unfiltered 0.63 / 0.89); mean
+    wrist error over Tr1-Tr5 0.44-0.61 mm (unfiltered 0.40-0.60) and keypoint error
+    1.19 px (unfiltered 1.12): the lag the filter adds to a moving hand.
     """
 
     posture: OneEuroSettings = OneEuroSettings(min_cutoff_hz=0.4, beta=20.0)
-    translation: OneEuroSettings = OneEuroSettings(min_cutoff_hz=0.4, beta=600.0)
-    rotation: OneEuroSettings = OneEuroSettings(min_cutoff_hz=0.4, beta=40.0)
+    translation: OneEuroSettings = OneEuroSettings(min_cutoff_hz=0.4, beta=1500.0)
+    rotation: OneEuroSettings = OneEuroSettings(min_cutoff_hz=0.4, beta=80.0)
 
 
 class PoseFilter:
@@ -98,21 +117,22 @@ class PoseFilter:
 
     The rotation is filtered on its error: the rotation vector ``e`` of the turn from
     the last output to the new estimate; the output turns by ``alpha * e``, with
-    ``alpha`` from the cutoff at the low-passed angular speed ``|e| / dt``.
+    ``alpha`` from the cutoff at the length of the low-passed angular velocity
+    ``e / dt``.
     """
 
     def __init__(self, settings: PoseFilterSettings | None = None) -> None:
         self.settings = settings or PoseFilterSettings()
         self._posture = OneEuroFilter(self.settings.posture)
-        self._translation = OneEuroFilter(self.settings.translation)
+        self._translation = OneEuroFilter(self.settings.translation, vector=True)
         self._rotation: NDArray[np.float64] | None = None
-        self._angular_speed = 0.0
+        self._angular_velocity = np.zeros(3)
 
     def reset(self) -> None:
         self._posture.reset()
         self._translation.reset()
         self._rotation = None
-        self._angular_speed = 0.0
+        self._angular_velocity = np.zeros(3)
 
     def __call__(
         self,
@@ -129,11 +149,11 @@ class PoseFilter:
             return posture, self._rotation.copy(), translation
         s = self.settings.rotation
         error = rotation_vector(rotation @ self._rotation.T)
-        speed = float(np.linalg.norm(error)) / dt_s
-        self._angular_speed += float(smoothing_factor(s.derivative_cutoff_hz, dt_s)) * (
-            speed - self._angular_speed
+        self._angular_velocity += smoothing_factor(s.derivative_cutoff_hz, dt_s) * (
+            error / dt_s - self._angular_velocity
         )
-        alpha = float(smoothing_factor(s.min_cutoff_hz + s.beta * self._angular_speed, dt_s))
+        speed = float(np.linalg.norm(self._angular_velocity))
+        alpha = float(smoothing_factor(s.min_cutoff_hz + s.beta * speed, dt_s))
         step = alpha * error
         size = float(np.linalg.norm(step))
         turn = axis_angle_to_matrix(step / size, size) if size > 0 else np.eye(3)

@@ -47,3 +47,23 @@ def test_pose_filter_keeps_a_still_rotation_and_follows_a_turning_one():
         np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-9)
     assert np.mean(errors[20:45]) < 0.5 * np.mean(raw[20:45])  # still: the noise is damped
     assert np.mean(errors[60:]) < 2.0  # turning 60 deg/s: less than a frame behind
+
+
+def test_vector_speed_follows_every_coordinate_of_a_moving_point():
+    # A wrist moving fast along x and slowly along y: with one speed per coordinate the
+    # slow y is filtered hard and lags; with the speed of the whole vector it follows.
+    rng = np.random.default_rng(2)
+    t = DT * np.arange(90)[:, None]
+    path = np.hstack([0.3 * t, 0.003 * t, np.zeros_like(t)])
+    settings = OneEuroSettings(min_cutoff_hz=0.4, beta=1500.0)
+    lag = {}
+    for vector in (False, True):
+        smooth = OneEuroFilter(settings, vector=vector)
+        out = np.array([smooth(x, DT) for x in path])
+        lag[vector] = np.abs(out[30:, 1] - path[30:, 1]).mean()
+    assert lag[True] < 0.5 * lag[False]
+    # Still, the noise (random in direction) averages out of the velocity: damped.
+    smooth = OneEuroFilter(settings, vector=True)
+    still = 0.0003 * rng.normal(size=(300, 3))
+    out = np.array([smooth(x, DT) for x in still])
+    assert np.std(np.diff(out[30:], axis=0)) < 0.5 * np.std(np.diff(still[30:], axis=0))
