@@ -14,12 +14,14 @@ The whole detector lives here (docs/fingertips.md):
   :mod:`~fingertips.segmentation`, :mod:`~fingertips.detector`, :mod:`~fingertips.depth_input`,
   :mod:`~fingertips.evaluation`, :mod:`~fingertips.miss_causes`,
   :mod:`~fingertips.heatmap_evaluation`, :mod:`~fingertips.geodesic` (candidates
-  without learning) with :mod:`~fingertips.geodesic_evaluation`, and
+  without learning) with :mod:`~fingertips.geodesic_evaluation`,
+  :mod:`~fingertips.calibration` (calibrated confidences) and
   :mod:`~fingertips.pictures`;
 - training, which renders with ``builder`` and fits with scikit-learn (and PyTorch for
   the network): :mod:`~fingertips.data`, :mod:`~fingertips.training`,
   :mod:`~fingertips.verifier_training`, :mod:`~fingertips.heatmap_data`,
-  :mod:`~fingertips.heatmap_training` and :mod:`~fingertips.tree_export`. Importing
+  :mod:`~fingertips.heatmap_training`, :mod:`~fingertips.calibration_training` and
+  :mod:`~fingertips.tree_export`. Importing
   this package imports none of them.
 """
 

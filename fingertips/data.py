@@ -1164,7 +1164,7 @@ def require_one_camera(config: FingertipDataConfig) -> None:
         )
 
 
-CONFIG_TABLES = ("data", "training", "detector", "verifier", "heatmap")
+CONFIG_TABLES = ("data", "training", "detector", "verifier", "heatmap", "calibration")
 """The tables of a fingertip config file (``configs/fingertips/*.toml``)."""
 
 

@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fingertips.assignment import FINGER_NAMES, assign_detections
+from fingertips.calibration import Calibration
 from fingertips.candidates import (
     CANDIDATE_SOURCES,
     CandidateSource,
@@ -61,9 +62,10 @@ class Detection:
     x_m, y_m, z_m : float
         Position in the camera frame (OpenCV axes), metres.
     confidence : float
-        Sum of the vote weights supporting the detection (see
-        :mod:`fingertips.voting`); for a heatmap detection, the mean heat of
-        its cell (a probability).
+        With a calibrated model (:mod:`fingertips.calibration`): the probability
+        that the detection lies within 15 mm of a fingertip, its ``tip_probability``
+        mapped by the model's confidence map for its source. Without calibration (a
+        model without maps or without a verifier): ``raw_confidence``.
     finger : str or None
         Finger name from the assignment to a posed model, None if unassigned or if no
         model was given.
@@ -76,6 +78,11 @@ class Detection:
         ``"geodesic"`` (a geodesic finger candidate no vote peak was near,
         :mod:`fingertips.candidates`) or ``"heatmap"`` (a peak of the whole-hand
         heatmap, :mod:`fingertips.heatmap`).
+    raw_confidence : float or None
+        The confidence before calibration: the sum of the vote weights supporting the
+        detection (:mod:`fingertips.voting`; 0 for a geodesic candidate without
+        votes) or, for a heatmap detection, the mean heat of its cell. None means
+        ``confidence`` is that raw value itself (no calibration).
     """
 
     u_px: float
@@ -87,6 +94,12 @@ class Detection:
     finger: str | None = None
     tip_probability: float | None = None
     source: str = "forest"
+    raw_confidence: float | None = None
+
+    @property
+    def uncalibrated_confidence(self) -> float:
+        """The uncalibrated confidence (``raw_confidence``, else ``confidence``)."""
+        return self.confidence if self.raw_confidence is None else self.raw_confidence
 
 
 @dataclass(frozen=True)
@@ -434,7 +447,9 @@ def detect_fingertips(
     Returns
     -------
     tuple of Detection
-        Strongest first.
+        Strongest first: by calibrated confidence when the model has confidence maps
+        (:mod:`fingertips.calibration`); else the forest's detections by vote weight
+        (by verifier probability when verified), then the heatmap's by probability.
     """
     camera = intrinsics_array(intrinsics)
     if config.min_tip_probability > 0 and model.verifier is None:
@@ -468,6 +483,8 @@ def detect_fingertips(
             detections += _heatmap_detections(
                 depth, camera, model.heatmap, config, candidates, probability, detections, hand
             )
+        if model.calibration is not None:
+            detections = calibrated_detections(detections, model.calibration)
     if model_tips_m is None:
         return detections
     return name_fingers(
@@ -479,6 +496,36 @@ def detect_fingertips(
         lam=lam,
         distance_unit_m=distance_unit_m,
     )
+
+
+def calibrated_detections(
+    detections: Sequence[Detection], calibration: Calibration
+) -> tuple[Detection, ...]:
+    """Detections with calibrated confidences, most confident first (ties keep their order).
+
+    Each ``confidence`` becomes the calibration's probability for the detection's
+    source and ``tip_probability``; the previous confidence moves to
+    ``raw_confidence``.
+
+    Raises
+    ------
+    ValueError
+        For a detection without ``tip_probability`` (made without a verifier), or of a
+        source the calibration has no map for.
+    """
+    calibrated = []
+    for d in detections:
+        if d.tip_probability is None:
+            raise ValueError("detections: calibration needs each detection's tip_probability")
+        calibrated.append(
+            replace(
+                d,
+                confidence=calibration.confidence(d.source, d.tip_probability),
+                raw_confidence=d.uncalibrated_confidence,
+            )
+        )
+    order = np.argsort([-d.confidence for d in calibrated], kind="stable")
+    return tuple(calibrated[k] for k in order)
 
 
 def _separated(
@@ -581,8 +628,9 @@ def name_fingers(
     """Name the fingers of detections by Eq. 11 of Tzionas et al. 2014.
 
     A detection's weight ``w_s`` (the cost of leaving it unassigned is ``lam * w_s``)
-    is its confidence over ``c_thr``, as in the paper, or, for verified detections
-    (``min_tip_probability > 0``), its verifier probability over
+    is its uncalibrated confidence (the vote weight) over ``c_thr``, as in the paper,
+    or, for verified detections (``min_tip_probability > 0``), its verifier
+    probability over
     ``min_tip_probability`` (over ``heatmap_min_probability`` for the heatmap's
     detections): in every case 1 at the threshold that kept it.
 
@@ -624,7 +672,7 @@ def name_fingers(
         ) / np.array([thresholds[d.source] for d in detections], dtype=np.float64)
         threshold = 1.0
     else:
-        weights = np.array([d.confidence for d in detections], dtype=np.float64)
+        weights = np.array([d.uncalibrated_confidence for d in detections], dtype=np.float64)
         threshold = c_thr
     assignment = assign_detections(
         positions, weights, tips, c_thr=threshold, lam=lam, distance_unit_m=distance_unit_m

@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
 
 from fingertips.assignment import FINGER_NAMES
+from fingertips.calibration import Reliability, reliability_table
 from fingertips.depth_input import DepthSequence, read_depth_scale, read_intrinsics
 from fingertips.detect import (
     DEFAULT_DETECTOR,
@@ -199,6 +200,13 @@ class FingertipMetrics:
     recall_by_depth : dict
         Per band of the annotated tips' depth (:data:`DEPTH_BANDS_M`, named like
         ``"0.5-0.75 m"``): ``{"tips": count, "recall_15mm": share}`` (NaN if none).
+    reliability : Reliability or None
+        The detections' probabilities against their being matched within 15 mm
+        (:func:`fingertips.calibration.reliability_table`): the calibrated confidences
+        when ``calibrated``, else the verifiers' ``tip_probability``; None when a
+        detection has neither (a model without a verifier).
+    calibrated : bool
+        Whether the detections' confidences are calibrated.
     """
 
     frames: int
@@ -214,6 +222,8 @@ class FingertipMetrics:
     missed_15mm: MissCauseCounts | None = None
     missed_10px: MissCauseCounts | None = None
     recall_by_depth: dict[str, dict[str, float]] = field(default_factory=dict)
+    reliability: Reliability | None = None
+    calibrated: bool = False
 
     def as_dict(self) -> dict[str, Any]:
         """The metrics as a JSON-ready dict (the miss counts as nested dicts)."""
@@ -391,6 +401,32 @@ def match_within(distance: NDArray[np.float64], gate: float) -> tuple[NDArray, N
     return rows[keep], cols[keep]
 
 
+def matched_detections(
+    detections: Sequence[Detection], tips_m: ArrayLike, *, gate_m: float = 0.015
+) -> NDArray[np.bool_]:
+    """Which detections of one frame are matched to an annotated tip within ``gate_m``.
+
+    The one-to-one matching of ``precision`` (:func:`match_within` on 3D distances).
+
+    Parameters
+    ----------
+    detections : sequence of Detection
+    tips_m : (5, 3) float
+        Annotated fingertips, metres; NaN rows are not annotated.
+    gate_m : float
+
+    Returns
+    -------
+    (K,) bool
+    """
+    tips = np.asarray(tips_m, dtype=np.float64).reshape(-1, 3)
+    annotated = tips[np.all(np.isfinite(tips), axis=1)]
+    distance = np.linalg.norm(detection_points(detections)[:, None] - annotated[None], axis=2)
+    matched = np.zeros(len(detections), dtype=bool)
+    matched[match_within(distance, gate_m)[0]] = True
+    return matched
+
+
 def match_frame_2d(
     uv_px: NDArray[np.float64], tips_px: NDArray[np.float64], *, gate_px: float = 10.0
 ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
@@ -476,6 +512,7 @@ def fingertip_metrics(
     missed_2d: list[MissCause | None] = []
     tip_depths: list[float] = []
     tip_found: list[bool] = []
+    correct: list[bool] = []
     for k, (frame_dets, frame_m, frame_px) in enumerate(
         zip(detections, tips_m, tips_px, strict=True)
     ):
@@ -485,6 +522,7 @@ def fingertip_metrics(
         distance_3d = np.linalg.norm(xyz[:, None] - frame_m[None, annotated], axis=2)
         distance_2d = np.linalg.norm(uv[:, None] - frame_px[None, annotated], axis=2)
         rows, cols = match_within(distance_3d, gate_3d_m)
+        correct.extend(np.isin(np.arange(len(frame_dets)), rows).tolist())
         errors_3d.extend(1000.0 * distance_3d[rows, cols])
         errors_2d.extend(distance_2d[rows, cols])
         n_det += len(frame_dets)
@@ -516,7 +554,25 @@ def fingertip_metrics(
         missed_15mm=None if causes is None else MissCauseCounts.of(missed_3d),
         missed_10px=None if causes is None else MissCauseCounts.of(missed_2d),
         recall_by_depth=recall_by_depth(tip_depths, np.array(tip_found, dtype=bool)),
+        reliability=_reliability([d for frame in detections for d in frame], correct),
+        calibrated=any(d.raw_confidence is not None for frame in detections for d in frame),
     )
+
+
+def detection_probability(detection: Detection) -> float | None:
+    """A detection's probability of being right: its calibrated confidence, else its
+    verifier probability (None without either)."""
+    if detection.raw_confidence is not None:
+        return detection.confidence
+    return detection.tip_probability
+
+
+def _reliability(detections: Sequence[Detection], correct: Sequence[bool]) -> Reliability | None:
+    """The reliability table of the detections' probabilities, None if one has none."""
+    probabilities = [detection_probability(d) for d in detections]
+    if any(p is None for p in probabilities):
+        return None
+    return reliability_table(np.array(probabilities, dtype=np.float64), np.array(correct, bool))
 
 
 def annotated_tip_causes(

@@ -31,6 +31,7 @@ key                     shape, dtype        meaning
                                             (0 where there are none)
 ``verifier_*``          see below           optional (format 2): the peak verifier
 ``heatmap_*``           see below           optional (format 3): the heatmap stage
+``calibration_*``       see below           optional (format 4): the confidence maps
 ======================  ==================  ===============================================
 
 The peak verifier (:class:`fingertips.verify.PeakVerifier`) is stored as
@@ -49,6 +50,11 @@ The heatmap stage (:class:`fingertips.heatmap.HeatmapStage`) is stored as
 ``heatmap_baseline``, ``heatmap_passes`` and ``heatmap_min_value``, and
 ``heatmap_features`` ``(F'',) str``, checked against
 :data:`fingertips.heatmap.HEAT_PEAK_FEATURES`.
+
+The confidence maps (:class:`fingertips.calibration.Calibration`) are stored as
+``calibration_KIND_scores`` and ``calibration_KIND_probabilities`` ``(B,) float64``,
+the breakpoints of the map of each kind of score (``verifier``, and ``heatmap`` for a
+model with a heatmap stage). A model without them gives uncalibrated confidences.
 """
 
 from __future__ import annotations
@@ -65,6 +71,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fingertips._tree_kernels import descend_depth_forest
+from fingertips.calibration import SCORE_KINDS, Calibration, ConfidenceMap
 from fingertips.features import (
     intrinsics_array,
     probe_image,
@@ -77,8 +84,8 @@ from glovedb._files import write_atomically
 from glovedb._validate import as_array
 
 FORMAT_NAME = "glove-fingertip-forest"
-FORMAT_VERSION = 3
-READABLE_VERSIONS = (1, 2, 3)
+FORMAT_VERSION = 4
+READABLE_VERSIONS = (1, 2, 3, 4)
 _VERIFIER_ARRAYS = (
     "tree_roots",
     "node_feature",
@@ -112,7 +119,9 @@ class FingertipForest:
 
     ``verifier`` is the optional peak verifier trained with it (None: detection keeps
     peaks by their vote weight alone); ``heatmap`` the optional second stage
-    (:mod:`fingertips.heatmap`), which needs the verifier.
+    (:mod:`fingertips.heatmap`), which needs the verifier; ``calibration`` the optional
+    confidence maps (:mod:`fingertips.calibration`), which need the verifier (and a
+    heatmap map for the heatmap stage).
     """
 
     offsets_m: NDArray[np.float32]
@@ -128,6 +137,7 @@ class FingertipForest:
     version: str = ""
     verifier: PeakVerifier | None = None
     heatmap: HeatmapStage | None = None
+    calibration: Calibration | None = None
 
     def __post_init__(self) -> None:
         _check_forest(self)
@@ -175,6 +185,11 @@ def _check_forest(forest: FingertipForest) -> None:
     check_tree_table(forest, forest.offsets_m.shape[0])
     if forest.heatmap is not None and forest.verifier is None:
         raise ValueError("heatmap: the heatmap stage needs the forest's peak verifier")
+    if forest.calibration is not None:
+        if forest.verifier is None:
+            raise ValueError("calibration: calibrated confidences need the peak verifier")
+        if forest.heatmap is not None and "heatmap" not in forest.calibration.maps:
+            raise ValueError("calibration: the heatmap stage needs a 'heatmap' map")
     try:
         json.loads(forest.settings_json)
     except ValueError as error:
@@ -204,6 +219,7 @@ def save_forest(forest: FingertipForest, path: str | os.PathLike[str]) -> None:
         node_offset_m=forest.node_offset_m.astype(np.float32),
         **_verifier_arrays(forest.verifier),
         **_heatmap_arrays(forest.heatmap),
+        **_calibration_arrays(forest.calibration),
     )
     write_atomically(path, lambda file: np.savez_compressed(file, **arrays))
 
@@ -259,6 +275,27 @@ def _read_heatmap(data: Any, path: str) -> HeatmapStage | None:
         passes=int(data["heatmap_passes"]),
         min_value=float(data["heatmap_min_value"]),
     )
+
+
+def _calibration_arrays(calibration: Calibration | None) -> dict[str, NDArray]:
+    if calibration is None:
+        return {}
+    arrays = {}
+    for kind, mapping in calibration.maps.items():
+        arrays[f"calibration_{kind}_scores"] = mapping.scores.astype(np.float64)
+        arrays[f"calibration_{kind}_probabilities"] = mapping.probabilities.astype(np.float64)
+    return arrays
+
+
+def _read_calibration(data: Any) -> Calibration | None:
+    maps: dict[str, ConfidenceMap] = {
+        kind: ConfidenceMap(
+            data[f"calibration_{kind}_scores"], data[f"calibration_{kind}_probabilities"]
+        )
+        for kind in SCORE_KINDS
+        if f"calibration_{kind}_scores" in data
+    }
+    return Calibration(maps) if maps else None
 
 
 def _read_verifier(data: Any, path: str) -> PeakVerifier | None:
@@ -343,6 +380,7 @@ def _forest_from_archive(data: Any, path: str) -> FingertipForest:
     verifier = _read_verifier(data, path)
     heatmap = _read_heatmap(data, path)
     try:
+        calibration = _read_calibration(data)
         return FingertipForest(
             offsets_m=data["offsets_m"].astype(np.float32),
             depth_range_m=(near, far),
@@ -357,6 +395,7 @@ def _forest_from_archive(data: Any, path: str) -> FingertipForest:
             version=str(data["version"]),
             verifier=verifier,
             heatmap=heatmap,
+            calibration=calibration,
         )
     except ValueError as error:
         raise ValueError(f"{path}: damaged {FORMAT_NAME} file ({error})") from error

@@ -26,6 +26,7 @@ import math
 import os
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import asdict, dataclass, replace
+from pathlib import Path
 from typing import Any, Literal, TypeAlias
 
 import numpy as np
@@ -33,6 +34,12 @@ import sklearn
 from numpy.typing import ArrayLike, NDArray
 from sklearn.ensemble import ExtraTreesClassifier, ExtraTreesRegressor, RandomForestClassifier
 
+from fingertips.calibration_training import (
+    CalibrationConfig,
+    calibrate_from_config,
+    calibration_config_from_dict,
+    without_calibration,
+)
 from fingertips.data import (
     FingertipDataConfig,
     FingertipExample,
@@ -541,6 +548,10 @@ class FingertipRecipe:
     heatmap : HeatmapTrainingConfig or None
         How the heatmap stage is trained (:mod:`fingertips.heatmap_data`; training it
         needs PyTorch); None: no heatmap stage.
+    calibration : CalibrationConfig or None
+        On which frames the confidence maps are fitted
+        (:mod:`fingertips.calibration_training`; its ``frames`` resolved against the
+        config's folder); None: uncalibrated confidences.
     """
 
     data: FingertipDataConfig
@@ -548,13 +559,14 @@ class FingertipRecipe:
     detector: DetectorConfig
     verifier: VerifierTrainingConfig | None = None
     heatmap: HeatmapTrainingConfig | None = None
+    calibration: CalibrationConfig | None = None
 
 
 def load_recipe(path: str | os.PathLike[str], **data_overrides: Any) -> FingertipRecipe:
     """Read a ``configs/fingertips/*.toml`` file.
 
-    Tables: ``data``, ``training``, ``detector`` and the optional ``verifier`` and
-    ``heatmap`` (which needs ``verifier``).
+    Tables: ``data``, ``training``, ``detector`` and the optional ``verifier``,
+    ``heatmap`` and ``calibration`` (both need ``verifier``).
 
     Parameters
     ----------
@@ -586,7 +598,14 @@ def load_recipe(path: str | os.PathLike[str], **data_overrides: Any) -> Fingerti
         raise ValueError(
             f"{os.fspath(path)}: detector: heatmap_min_probability needs a [heatmap] table"
         )
-    return FingertipRecipe(data, training, detector, verifier, heatmap)
+    calibration = None
+    if "calibration" in content:
+        if verifier is None:
+            raise ValueError(f"{os.fspath(path)}: a [calibration] table needs a [verifier] table")
+        calibration = calibration_config_from_dict(content["calibration"])
+        frames = Path(path).parent / calibration.frames
+        calibration = replace(calibration, frames=frames.as_posix())
+    return FingertipRecipe(data, training, detector, verifier, heatmap, calibration)
 
 
 def _hidden_tips(example: FingertipExample) -> NDArray[np.float64]:
@@ -622,7 +641,10 @@ def train_from_recipe(
     Returns
     -------
     FingertipForest
-        With the data, detector, training, verifier and heatmap settings recorded.
+        With the data, detector, training, verifier and heatmap settings recorded,
+        and the confidence maps when the recipe has a ``[calibration]`` table
+        (:func:`fingertips.calibration_training.calibrate_from_config`, the same as
+        ``glove fingertips calibrate``). Maps of a given ``forest`` are dropped.
 
     Raises
     ------
@@ -635,6 +657,23 @@ def train_from_recipe(
         require_torch()  # before any rendering
     if heatmap is None and (keep_verifier or heatmap_network is not None):
         raise ValueError("the config has no [heatmap] table: nothing to train")
+    if forest is not None:
+        forest = without_calibration(forest)  # its scores change
+    trained = _train_stages(recipe, progress, forest, keep_verifier, heatmap_network)
+    if recipe.calibration is None:
+        return trained
+    return calibrate_from_config(trained, recipe.calibration)
+
+
+def _train_stages(
+    recipe: FingertipRecipe,
+    progress: bool,
+    forest: FingertipForest | None,
+    keep_verifier: bool,
+    heatmap_network: NDArray[np.uint8] | None,
+) -> FingertipForest:
+    """:func:`train_from_recipe` without the confidence maps."""
+    heatmap = recipe.heatmap
     if keep_verifier:
         assert heatmap is not None  # checked above
         if forest is None or forest.verifier is None:

@@ -1,7 +1,8 @@
 """``glove fingertips``: train, run and score the depth fingertip detector.
 
 Sub-commands: ``train CONFIG.toml --out MODEL.npz`` (render training data and fit the
-forest, its verifier and the heatmap stage), ``crops CONFIG.toml --out CROPS.npz`` and
+forest, its verifier and the heatmap stage), ``calibrate MODEL CONFIG.toml --out
+MODEL.npz`` (its confidence maps), ``crops CONFIG.toml --out CROPS.npz`` and
 ``train-heatmap CONFIG.toml --out NETWORK.onnx`` (the heatmap network's training in
 parts), ``eval-heatmap NETWORK INPUT`` (the network alone), ``synth CONFIG.toml --out
 DIR`` (write rendered, annotated test frames), ``detect INPUT --out DIR``
@@ -66,6 +67,29 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     _add_noise_option(train)
     train.set_defaults(run=run_train)
+
+    calibrate = actions.add_parser(
+        "calibrate",
+        help="fit a model's confidence maps on the frames of a config's [calibration]",
+        description="Run the model on the frames named by the config's [calibration] "
+        "table (rendered as synth renders them, or read from --frames) and fit the maps "
+        "from its verifiers' probabilities to the probability that a detection is right "
+        "(isotonic regression); write the model with them. train does the same when the "
+        "config has the table.",
+    )
+    calibrate.add_argument("model", help="model file (.npz) with a peak verifier")
+    calibrate.add_argument(
+        "config",
+        help="TOML config with a [calibration] table, e.g. configs/fingertips/default.toml",
+    )
+    calibrate.add_argument("--out", required=True, help="model file to write (.npz; may be MODEL)")
+    calibrate.add_argument(
+        "--frames",
+        metavar="DIR",
+        help="a folder that synth wrote from the [calibration] frames config (the same "
+        "frames, not rendered again)",
+    )
+    calibrate.set_defaults(run=run_calibrate)
 
     crops = actions.add_parser(
         "crops",
@@ -285,6 +309,31 @@ def run_train(args: argparse.Namespace) -> int:
     print(
         f"wrote {out} ({forest.n_trees} trees, {forest.node_feature.size} nodes, "
         f"{size_mb:.1f} MB) in {time.perf_counter() - started:.0f} s"
+    )
+    return 0
+
+
+def run_calibrate(args: argparse.Namespace) -> int:
+    from fingertips.calibration_training import calibrate_from_config
+    from fingertips.forest import load_forest, save_forest
+    from fingertips.training import load_recipe
+
+    out = _output_file(args.out, ".npz", "a model file")
+    calibration = load_recipe(args.config).calibration
+    if calibration is None:
+        raise ValueError(f"{args.config}: no [calibration] table")
+    model = load_forest(args.model)
+    started = time.perf_counter()
+    model = calibrate_from_config(model, calibration, folder=args.frames, progress=_progress)
+    save_forest(model, out)
+    recorded = model.settings["calibration"]
+    counts = ", ".join(
+        f"{kind} {recorded['correct'][kind]} of {n} right"
+        for kind, n in recorded["samples"].items()
+    )
+    print(
+        f"wrote {out}: confidence maps from {recorded['n_images']} frames of "
+        f"{calibration.frames} ({counts}) in {time.perf_counter() - started:.0f} s"
     )
     return 0
 
@@ -603,6 +652,8 @@ def run_eval(args: argparse.Namespace) -> int:
             "10px": metrics.missed_10px.as_dict(),
         },
         "recall_by_depth": metrics.recall_by_depth,
+        "calibrated": metrics.calibrated,
+        "reliability": None if metrics.reliability is None else metrics.reliability.as_dict(),
         "annotations": name,
         "model": str(args.model or "default"),
         "detector": config.as_dict(),
@@ -636,6 +687,8 @@ def run_eval(args: argparse.Namespace) -> int:
         ),
         file=sys.stdout,
     )
+    if metrics.reliability is not None:
+        print(_reliability_text(metrics.reliability, calibrated=metrics.calibrated))
     if guesses is not None:
         print(
             f"pose guess: {guesses.guessed} of {guesses.frames} right-hand frames; medians "
@@ -644,6 +697,21 @@ def run_eval(args: argparse.Namespace) -> int:
             f"{100 * guesses.within_15deg:.0f}% within 15 deg; {guesses.ms_per_guess:.0f} ms"
         )
     return 0
+
+
+def _reliability_text(reliability: Any, *, calibrated: bool) -> str:
+    """The reliability table of ``eval``: one line per non-empty bin, then the ECE."""
+    what = "calibrated confidence" if calibrated else "verifier probability (uncalibrated)"
+    lines = [f"reliability of the {what}: bin, detections, mean, share right (15 mm)"]
+    lines += [
+        f"  {b.low:.1f}-{b.high:.1f}  {b.count:5d}  {b.mean_confidence:.3f}  {b.share_correct:.3f}"
+        for b in reliability.bins
+        if b.count
+    ]
+    lines.append(
+        f"expected calibration error {reliability.ece:.3f} ({reliability.detections} detections)"
+    )
+    return "\n".join(lines)
 
 
 def _cause_counts(counts: dict[str, int]) -> str:
@@ -655,6 +723,8 @@ def _finite_or_none(value: Any) -> Any:
     """``value`` with every non-finite float (also inside dicts) replaced by None."""
     if isinstance(value, dict):
         return {k: _finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite_or_none(v) for v in value]
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 

@@ -6,6 +6,7 @@ import sys
 INFERENCE_MODULES = (
     "fingertips",
     "fingertips.assignment",
+    "fingertips.calibration",
     "fingertips.depth_input",
     "fingertips.detect",
     "fingertips.detector",
