@@ -90,7 +90,11 @@ class OneEuroFilter:
         s = self.settings
         speed = (value - self._value) / dt_s
         self._speed += smoothing_factor(s.derivative_cutoff_hz, dt_s) * (speed - self._speed)
-        size = np.linalg.norm(self._speed) if self.vector else np.abs(self._speed)
+        size = (
+            np.full_like(self._speed, np.linalg.norm(self._speed))
+            if self.vector
+            else np.abs(self._speed)
+        )
         alpha = smoothing_factor(s.min_cutoff_hz + s.beta * size, dt_s)
         self._value = self._value + alpha * (value - self._value)
         return self._value.copy()
