@@ -110,7 +110,17 @@ def farthest_point_selection(
     picks = np.empty(count, dtype=np.int64)
     picks[0] = first
     nearest = np.linalg.norm(features - features[first], axis=1)
+    owner = np.zeros(len(features), dtype=np.int64)  # which pick is nearest (its order)
     for index in range(1, count):
-        picks[index] = int(np.argmax(nearest))
-        nearest = np.minimum(nearest, np.linalg.norm(features - features[picks[index]], axis=1))
+        pick = int(np.argmax(nearest))
+        picks[index] = pick
+        # Triangle inequality: a posture whose nearest pick lies more than twice its
+        # distance from the new pick is farther from the new pick than from its own,
+        # so its distance is not computed (the margin covers rounding). The others get
+        # the same row-wise norms as over all rows, so the picks are the plain loop's.
+        to_picks = np.linalg.norm(features[picks[:index]] - features[pick], axis=1)
+        near = np.flatnonzero(to_picks[owner] <= 2.0 * nearest * (1.0 + 1e-9))
+        distance = np.linalg.norm(features[near] - features[pick], axis=1)
+        owner[near[distance < nearest[near]]] = index
+        nearest[near] = np.minimum(nearest[near], distance)
     return picks
