@@ -22,6 +22,11 @@ rest normals and color classes), posed without the mesh's faces: normals follow 
 blended bone rotations. Hand proportions (:mod:`glovedb.proportions`) re-rest the
 samples; their derivatives (:meth:`PosedHand.proportion_jacobian`) are forward
 differences, used only while a user's proportions are estimated.
+
+The fit poses the hand several times per frame: posing the samples, their Jacobian
+rows and the keypoints' Jacobians are compiled loops (:mod:`tracker.generative._kernels`),
+and what does not change with the pose (the inverse rest transforms, the weights) is
+kept with the samples.
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from glovedb._validate import as_array
+from glovedb.capsules import CapsuleSet, finger_capsules
 from glovedb.hand_model import (
     BONE_PARENTS,
     N_BONES,
@@ -70,6 +76,12 @@ def _dof_table() -> tuple[NDArray[np.int64], NDArray[np.bool_], NDArray[np.float
 
 
 DOF_BONE, DOF_ABOUT_Z, DOF_SIGN = _dof_table()
+_DOF_PARENT = np.array([BONE_PARENTS[b] for b in DOF_BONE], dtype=np.int64)
+"""The parent bone of every joint angle's bone (-1 for none)."""
+_Z_JOINT = np.array(
+    [max(np.flatnonzero(DOF_ABOUT_Z & (DOF_BONE == bone)), default=-1) for bone in DOF_BONE]
+)
+"""The angle that turns every joint angle's bone about z (-1 for none)."""
 
 
 def _moves() -> NDArray[np.float64]:
@@ -85,6 +97,18 @@ def _moves() -> NDArray[np.float64]:
 
 
 MOVES = _moves()
+
+
+def _movers() -> NDArray[np.int64]:
+    """``(16, K)``: the joint angles that move each bone (:data:`MOVES`), -1 padded."""
+    movers = np.full((N_BONES, int(MOVES.sum(axis=0).max())), -1, dtype=np.int64)
+    for bone in range(N_BONES):
+        joints = np.flatnonzero(MOVES[:, bone])
+        movers[bone, : len(joints)] = joints
+    return movers
+
+
+MOVERS = _movers()
 
 KEYPOINT_BONES = np.array(
     [0] + [1 + 3 * f + s for f in range(5) for s in (0, 1, 2, 2)], dtype=np.int64
@@ -167,6 +191,24 @@ class HandSamples:
             self, mesh=proportioned_mesh(self.model, proportions), proportions=proportions
         )
 
+    @cached_property
+    def finger_capsules(self) -> CapsuleSet:
+        """The round cones of the fingers on the samples' skeleton
+        (:func:`glovedb.capsules.finger_capsules`)."""
+        return finger_capsules(self.skeleton)
+
+    @cached_property
+    def _weights(self) -> NDArray[np.float64]:
+        """``(S, 16)`` the skinning weights as float64, C order."""
+        return np.ascontiguousarray(self.mesh.weights, dtype=np.float64)
+
+    @cached_property
+    def _rest_inverse(self) -> NDArray[np.float64]:
+        """``(16, 4, 4)`` inverse bone transforms at rest: the skinning matrices of a
+        pose are its ``hand_T_bone`` times these (the same for every pose)."""
+        rest = forward_kinematics(np.zeros(N_JOINTS), self.skeleton).bone_transforms[0]
+        return np.asarray(np.linalg.inv(rest), dtype=np.float64)
+
 
 def hand_samples(mesh: HandMesh, split: LabeledVertices, *, spacing: int = 1) -> HandSamples:
     """Labeled samples of a glove mesh: every ``spacing``-th vertex of its class split.
@@ -215,7 +257,7 @@ class PosedHand:
     normals : (S, 3) float64
         Their unit normals, camera frame.
     facing : (S,) bool
-        Samples whose normal faces the camera (computed on first use).
+        Samples whose outward normal points toward the camera (``n . p < 0``).
     keypoints_m : (21, 3) float64
         Camera frame.
     bone_transforms : (16, 4, 4) float64
@@ -233,37 +275,32 @@ class PosedHand:
         self.pose = pose
         self._proportion_jacobian = proportion_jacobian
         R, t = pose.rotation, pose.translation_m
-        both = forward_kinematics(
-            np.vstack([pose.posture_rad, np.zeros(N_JOINTS)]), samples.skeleton
-        )
-        world = both.bone_transforms[0]  # (16, 4, 4) hand_T_bone
+        kinematics = forward_kinematics(pose.posture_rad, samples.skeleton)
+        world = kinematics.bone_transforms[0]  # (16, 4, 4) hand_T_bone
         self.bone_transforms = world
-        self._skinning = (world @ np.linalg.inv(both.bone_transforms[1]))[:, :3, :]
-        weights = samples.mesh.weights.astype(np.float64)
-        blended = (weights @ self._skinning.reshape(N_BONES, 12)).reshape(-1, 3, 4)
-        rest = samples.mesh.rest_vertices_m
-        hand_points = np.einsum("sij,sj->si", blended[..., :3], rest) + blended[..., 3]
-        normals = np.einsum("sij,sj->si", blended[..., :3], samples.rest_normals)
-        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
-        self._weights = weights
-        self.points_m = hand_points @ R.T + t
-        self.normals = normals @ R.T
-        self.keypoints_m = both.keypoints_m[0] @ R.T + t
-        self._hand_keypoints = both.keypoints_m[0]
-        # Joint axes and pivots (camera frame).
-        parents = np.array([BONE_PARENTS[b] for b in DOF_BONE])
-        parent_rotation = world[np.maximum(parents, 0), :3, :3]
+        self._skinning = np.ascontiguousarray((world @ samples._rest_inverse)[:, :3, :])
+        self._weights = samples._weights
+        self._rest = np.ascontiguousarray(samples.mesh.rest_vertices_m, dtype=np.float64)
+        self._rotation = np.ascontiguousarray(R, dtype=np.float64)
+        count = len(samples)
+        self.points_m = np.empty((count, 3))
+        self.normals = np.empty((count, 3))
+        self.facing = np.empty(count, dtype=bool)
+        _kernels.pose_samples(
+            self._weights, self._rest, np.ascontiguousarray(samples.rest_normals, dtype=np.float64),
+            self._skinning, self._rotation, np.ascontiguousarray(t, dtype=np.float64),
+            self.points_m, self.normals, self.facing,
+        )  # fmt: skip
+        self.keypoints_m = kinematics.keypoints_m[0] @ R.T + t
+        self._hand_keypoints = kinematics.keypoints_m[0]
+        # Joint axes and pivots (hand frame).
+        parent_rotation = world[np.maximum(_DOF_PARENT, 0), :3, :3]
         frame = parent_rotation @ samples.skeleton.rest_before[DOF_BONE]
         z_axes = frame[:, :, 2]
         x_after_z = _x_after_z(frame, pose.posture_rad)
         axes = np.where(DOF_ABOUT_Z[:, None], z_axes, x_after_z) * DOF_SIGN[:, None]
         self._axes_hand = axes
         self._pivots_hand = world[DOF_BONE, :3, 3]
-
-    @cached_property
-    def facing(self) -> NDArray[np.bool_]:
-        """``(S,)`` samples whose outward normal points toward the camera."""
-        return np.einsum("ij,ij->i", self.normals, self.points_m) < 0
 
     def vertex_jacobian(self, sample_ids: ArrayLike) -> NDArray[np.float64]:
         """``(P, 3, 26)`` derivatives of samples (camera frame) by the 26 unknowns."""
@@ -295,12 +332,44 @@ class PosedHand:
         along = np.ascontiguousarray(directions, dtype=np.float64)
         rows = np.empty((len(ids), N_PARAMS))
         _kernels.directional_vertex_rows(
-            ids, self._weights, self.samples.mesh.rest_vertices_m,
-            np.ascontiguousarray(self._skinning), MOVES, self._axes_hand, self._pivots_hand,
-            self.pose.rotation, self.pose.translation_m,
+            ids, self._weights, self._rest, self._skinning, MOVERS, self._axes_hand,
+            self._pivots_hand, self._rotation, self.pose.translation_m,
             np.ascontiguousarray(self.points_m[ids]), along, rows,
         )  # fmt: skip
         return rows
+
+    def plane_rows(
+        self, sample_ids: ArrayLike, targets_m: ArrayLike
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Distances of points to the tangent planes of samples, and their derivatives.
+
+        ``(p_s - q) . n_s`` for every pair of a sample ``s`` and a point ``q``, and the
+        rows ``n_s . J_s`` of :meth:`directional_rows` along each sample's normal (the
+        normal held fixed, as point-to-plane ICP does), in one compiled pass that
+        computes the row of a sample paired several times once.
+
+        Parameters
+        ----------
+        sample_ids : (P,) int
+        targets_m : (P, 3) float
+            Camera frame.
+
+        Returns
+        -------
+        distance_m : (P,) float64
+            Positive where the point lies behind the plane (against the normal).
+        rows : (P, 26) float64
+        """
+        ids = np.ascontiguousarray(sample_ids, dtype=np.int64)
+        targets = np.ascontiguousarray(targets_m, dtype=np.float64)
+        distance = np.empty(len(ids))
+        rows = np.empty((len(ids), N_PARAMS))
+        _kernels.plane_rows(
+            ids, targets, self._weights, self._rest, self._skinning, MOVERS, self._axes_hand,
+            self._pivots_hand, self._rotation, self.pose.translation_m, self.points_m,
+            self.normals, distance, rows,
+        )  # fmt: skip
+        return distance, rows
 
     def keypoint_jacobian(self, keypoint_ids: ArrayLike) -> NDArray[np.float64]:
         """``(K, 3, 26)`` derivatives of keypoints (camera frame) by the 26 unknowns."""
@@ -343,27 +412,19 @@ class PosedHand:
     ) -> NDArray[np.float64]:
         """Assemble ``(P, 3, 26)`` from camera points, and per joint the summed
         bone-moved positions ``(P, 20, 3)`` and weight shares ``(P, 20)`` (hand frame)."""
-        R, t = self.pose.rotation, self.pose.translation_m
-        arm = moved_hand - share[..., None] * self._pivots_hand  # (P, 20, 3)
-        d_angles = np.cross(self._axes_hand[None], arm) @ R.T  # (P, 20, 3)
-        d = points - t
         jacobian = np.zeros((len(points), 3, N_PARAMS))
-        jacobian[:, 0, 1], jacobian[:, 0, 2] = d[:, 2], -d[:, 1]
-        jacobian[:, 1, 0], jacobian[:, 1, 2] = -d[:, 2], d[:, 0]
-        jacobian[:, 2, 0], jacobian[:, 2, 1] = d[:, 1], -d[:, 0]
-        jacobian[:, [0, 1, 2], [3, 4, 5]] = 1.0
-        jacobian[:, :, 6:] = d_angles.transpose(0, 2, 1)
+        _kernels.point_jacobians(
+            np.ascontiguousarray(points, dtype=np.float64),
+            np.ascontiguousarray(moved_hand, dtype=np.float64),
+            np.ascontiguousarray(share, dtype=np.float64), self._axes_hand, self._pivots_hand,
+            self._rotation, self.pose.translation_m, jacobian,
+        )  # fmt: skip
         return jacobian
 
 
 def _x_after_z(frame: NDArray[np.float64], posture_rad: NDArray[np.float64]) -> NDArray[np.float64]:
     """``(20, 3)``: the x axis of ``frame @ Rz(z_angle)`` for every joint angle, with the
     z angle of that angle's bone (0 for bones without one)."""
-    z_angle = np.zeros(N_JOINTS)
-    z_of_bone = {1: -posture_rad[1]}
-    for finger in range(1, 5):
-        z_of_bone[1 + 3 * finger] = posture_rad[4 * finger]
-    for joint, bone in enumerate(DOF_BONE):
-        z_angle[joint] = z_of_bone.get(int(bone), 0.0)
+    z_angle = np.where(_Z_JOINT >= 0, DOF_SIGN[_Z_JOINT] * posture_rad[_Z_JOINT], 0.0)
     # Rz(z) @ e_x = (cos z, sin z, 0)
     return frame[:, :, 0] * np.cos(z_angle)[:, None] + frame[:, :, 1] * np.sin(z_angle)[:, None]

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from glovedb.camera import CameraIntrinsics
+from tracker.generative import _kernels
 from tracker.point_cloud import HandRegion, LabeledPointCloud
 
 CROP_MARGIN_PX = 48
@@ -137,12 +138,13 @@ class CropLookup:
 def look_up(observation: Observation, points_m: NDArray[np.float64]) -> CropLookup:
     """Project ``(P, 3)`` camera-frame points into the observation's crop and read the
     hand mask's distance and the observed depth there."""
-    z = np.maximum(points_m[:, 2], 1e-3)
-    fx, fy, cx, cy = observation.intrinsics.pinhole
-    col = np.rint(fx * points_m[:, 0] / z + cx).astype(np.int64) - observation.origin_uv[0]
-    row = np.rint(fy * points_m[:, 1] / z + cy).astype(np.int64) - observation.origin_uv[1]
+    points = np.ascontiguousarray(points_m, dtype=np.float64)
     height, width = observation.outside_px.shape
-    inside = (col >= 0) & (col < width) & (row >= 0) & (row < height)
-    col, row = np.clip(col, 0, width - 1), np.clip(row, 0, height - 1)
+    row, col = np.empty(len(points), dtype=np.int64), np.empty(len(points), dtype=np.int64)
+    inside = np.empty(len(points), dtype=bool)
+    _kernels.crop_pixels(
+        points, observation.intrinsics.pinhole, observation.origin_uv, height, width, row, col,
+        inside,
+    )  # fmt: skip
     outside = np.where(inside, observation.outside_px[row, col], np.float32(np.inf))
     return CropLookup(row, col, inside, outside, observation.depth_m[row, col])

@@ -19,10 +19,12 @@ from __future__ import annotations
 from functools import cache
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
+from glovedb._validate import as_array
 from glovedb.capsules import CapsuleSet, finger_capsules
 from glovedb.hand_model import N_JOINTS, Skeleton, forward_kinematics, make_skeleton
+from tracker.generative import _kernels
 from tracker.generative.energy.residuals import Residuals
 from tracker.generative.model import PosedHand
 
@@ -30,29 +32,30 @@ NAME = "collision"
 
 
 def segment_closest_points(
-    a0: NDArray[np.float64],
-    a1: NDArray[np.float64],
-    b0: NDArray[np.float64],
-    b1: NDArray[np.float64],
+    a0: ArrayLike, a1: ArrayLike, b0: ArrayLike, b1: ArrayLike
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Parameters ``s, t`` in [0, 1] of the closest points of segments ``a0-a1`` and
-    ``b0-b1`` (``(P, 3)`` each), for ``P`` pairs at once."""
-    da, db, r = a1 - a0, b1 - b0, a0 - b0
-    aa, bb = np.einsum("pi,pi->p", da, da), np.einsum("pi,pi->p", db, db)
-    ab, ar, br = (
-        np.einsum("pi,pi->p", da, db),
-        np.einsum("pi,pi->p", da, r),
-        np.einsum("pi,pi->p", db, r),
+    """Parameters of the closest points of pairs of segments.
+
+    Parameters
+    ----------
+    a0, a1, b0, b1 : (P, 3) float
+        End points of the segments ``a0-a1`` and ``b0-b1`` of ``P`` pairs.
+
+    Returns
+    -------
+    s, t : (P,) float64
+        In [0, 1]: the closest points are ``a0 + s (a1 - a0)`` and ``b0 + t (b1 - b0)``
+        (for parallel segments, one of the closest pairs).
+    """
+    first = np.ascontiguousarray(as_array("a0", a0, (None, 3), np.float64))
+    count = len(first)
+    a_end, b_start, b_end = (
+        np.ascontiguousarray(as_array(name, value, (count, 3), np.float64))
+        for name, value in (("a1", a1), ("b0", b0), ("b1", b1))
     )
-    denominator = aa * bb - ab * ab
-    parallel = denominator < 1e-12 * np.maximum(aa * bb, 1e-30)
-    s = np.where(
-        parallel, 0.0, np.clip((ab * br - bb * ar) / np.where(parallel, 1.0, denominator), 0, 1)
-    )
-    t = (ab * s + br) / np.maximum(bb, 1e-30)
-    t_clipped = np.clip(t, 0.0, 1.0)
-    s = np.where(t != t_clipped, np.clip((ab * t_clipped - ar) / np.maximum(aa, 1e-30), 0, 1), s)
-    return s, t_clipped
+    s, t = np.empty(count), np.empty(count)
+    _kernels.segment_parameters(first, a_end, b_start, b_end, s, t)
+    return s, t
 
 
 def _posed(capsules: CapsuleSet, transforms: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
@@ -79,17 +82,18 @@ def _pairs(skeleton: Skeleton) -> NDArray[np.int64]:
 def _overlaps(
     capsules: CapsuleSet, transforms: NDArray, first: NDArray, second: NDArray
 ) -> tuple[NDArray, NDArray, NDArray]:
+    """Overlaps ``(Q,)`` of the capsule pairs ``first, second`` posed by ``transforms``
+    and the closest points of their axes ``(Q, 3)`` each."""
     start, end = _posed(capsules, transforms)
-    s, t = segment_closest_points(start[first], end[first], start[second], end[second])
-    pa = start[first] + s[:, None] * (end[first] - start[first])
-    pb = start[second] + t[:, None] * (end[second] - start[second])
-    ra = capsules.radius_start_m[first] + s * (
-        capsules.radius_end_m[first] - capsules.radius_start_m[first]
-    )
-    rb = capsules.radius_start_m[second] + t * (
-        capsules.radius_end_m[second] - capsules.radius_start_m[second]
-    )
-    return ra + rb - np.linalg.norm(pa - pb, axis=1), pa, pb
+    overlap = np.empty(len(first))
+    pa, pb = np.empty((len(first), 3)), np.empty((len(first), 3))
+    _kernels.capsule_overlaps(
+        start, end, np.ascontiguousarray(capsules.radius_start_m),
+        np.ascontiguousarray(capsules.radius_end_m),
+        np.ascontiguousarray(first, dtype=np.int64), np.ascontiguousarray(second, dtype=np.int64),
+        overlap, pa, pb,
+    )  # fmt: skip
+    return overlap, pa, pb
 
 
 @cache
@@ -102,9 +106,8 @@ def _model_pairs() -> NDArray[np.int64]:
 def collision_residuals(hand: PosedHand, *, weight: float, tolerance_m: float = 0.002) -> Residuals:
     """Residuals ``weight * (overlap - tolerance_m)`` (per metre) of cones of two
     fingers that overlap by more than ``tolerance_m``."""
-    skeleton = hand.samples.skeleton
     pairs = _model_pairs()
-    capsules = finger_capsules(skeleton)
+    capsules = hand.samples.finger_capsules
     R, t = hand.pose.rotation, hand.pose.translation_m
     camera_T_bone = hand.bone_transforms.copy()
     camera_T_bone[:, :3, :3] = R @ camera_T_bone[:, :3, :3]

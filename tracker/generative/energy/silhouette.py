@@ -13,15 +13,18 @@ Camera-facing model samples are projected into the image:
 
 This is the 2D/3D fitting of the thesis (ch. 6.2) in the robust form htrack uses
 (Tagliasacchi et al. 2015): a one-sided silhouette term plus occlusion reasoning.
+The samples are projected, classified and given their residuals in one compiled pass
+(:func:`tracker.generative._kernels.silhouette_rows`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from tracker.generative import _kernels
 from tracker.generative.energy.residuals import Residuals, project_rows
 from tracker.generative.model import PosedHand
-from tracker.generative.observation import Observation, look_up
+from tracker.generative.observation import Observation
 
 NAME = "silhouette"
 
@@ -65,51 +68,24 @@ def silhouette_residuals(
     if len(facing) == 0:
         return Residuals.empty(NAME, proportions=proportions), 0.0
     chosen = facing[:: max(1, len(facing) // max(max_samples, 1))]
-    points = hand.points_m[chosen]
-    z = np.maximum(points[:, 2], 1e-3)
-    fx, fy, _, _ = observation.intrinsics.pinhole
-    pixels = look_up(observation, points)
-    row, col, inside_crop = pixels.row, pixels.col, pixels.inside
-    seen, distance = pixels.seen_m, pixels.outside_px
-    hidden = (seen > 0) & (seen < z - depth_margin_m)
-    off_mask = (distance > margin_px) & ~hidden
-    # Beyond the crop the distance is unknown but large: those samples go through the
-    # crop's edge value (the pull's direction is still right).
-    off_crop = ~inside_crop & ~hidden
-    in_front = inside_crop & ~off_mask & (seen > 0) & (z < seen - depth_margin_m)
-    scale = weight / np.sqrt(len(chosen))
-    rows = []
-    directions = []
-    values = []
-    pull = np.flatnonzero(off_mask & inside_crop)
-    if len(pull):
-        metres_per_px = z[pull] / fx
-        values.append((distance[pull] - margin_px) * metres_per_px)
-        g = observation.gradient[row[pull], col[pull]]
-        # d(distance)/dp = g_u du/dp + g_v dv/dp, times metres per pixel.
-        direction = np.column_stack(
-            [
-                g[:, 0] * fx / z[pull],
-                g[:, 1] * fy / z[pull],
-                -(g[:, 0] * fx * points[pull, 0] + g[:, 1] * fy * points[pull, 1]) / z[pull] ** 2,
-            ]
-        )
-        directions.append(direction * metres_per_px[:, None])
-        rows.append(pull)
-    push = np.flatnonzero(in_front)
-    if len(push):
-        values.append(z[push] - (seen[push] - depth_margin_m))
-        directions.append(np.tile([0.0, 0.0, 1.0], (len(push), 1)))
-        rows.append(push)
-    outside_share = float(np.mean(off_mask | off_crop))
-    if not rows:
+    count = len(chosen)
+    kind = np.empty(count, dtype=np.int8)
+    value, direction = np.empty(count), np.empty((count, 3))
+    outside = _kernels.silhouette_rows(
+        np.ascontiguousarray(hand.points_m[chosen]), observation.intrinsics.pinhole,
+        observation.origin_uv, observation.outside_px, observation.gradient,
+        observation.depth_m, float(margin_px), float(depth_margin_m), kind, value, direction,
+    )  # fmt: skip
+    outside_share = outside / count
+    index = np.concatenate(
+        [np.flatnonzero(kind == _kernels.PULL), np.flatnonzero(kind == _kernels.PUSH)]
+    )
+    if len(index) == 0:
         return Residuals.empty(NAME, proportions=proportions), outside_share
-    index = np.concatenate(rows)
-    direction = np.concatenate(directions)
-    value = scale * np.concatenate(values)
+    scale = weight / np.sqrt(count)
     samples = chosen[index]
-    jacobian = scale * hand.directional_rows(samples, direction)
+    jacobian = scale * hand.directional_rows(samples, direction[index])
     by_proportions = None
     if proportions:
-        by_proportions = scale * project_rows(hand.proportion_jacobian(samples), direction)
-    return Residuals(NAME, value, jacobian, by_proportions), outside_share
+        by_proportions = scale * project_rows(hand.proportion_jacobian(samples), direction[index])
+    return Residuals(NAME, scale * value[index], jacobian, by_proportions), outside_share
