@@ -492,6 +492,11 @@ class Tracker(Closing):
             region.pixels_uv.astype(np.float64), region.labels, self._sizes
         )
         query = {size: stack[0] for size, stack in stacks.items()}
+        if not all(image.any() for image in query.values()):
+            # Glove-colored pixels too scattered to be a hand (noise in a dark room):
+            # no tiny image keeps a glove cell.
+            lap("lookup")
+            return None
         search = self.index.search(query, self._search_cascade, workers=self.settings.workers)
         candidate_postures = self.index.entry_postures(search.entry_ids)
         scores = temporal_scores(

@@ -1,10 +1,12 @@
 """The color-labeled point cloud of the glove (thesis Eq. 4.1) and the hand's pixels.
 
 :func:`hand_region` picks the glove pixels that belong to the hand: classified glove
-pixels whose depth is missing or inside the working range, grouped into 8-connected
-blobs (after closing one-pixel gaps between patches); the largest blob is the hand,
-and blobs near it in the image and in depth join it (a finger split off by an
-occluding edge). :func:`labeled_point_cloud` back-projects the hand's pixels that
+pixels whose depth is missing or inside the working range, freed of isolated pixels
+(a morphological opening: a dark room's color noise makes scattered background pixels
+glove-like, dense enough to connect into one blob with the hand) and grouped into
+8-connected blobs (after closing one-pixel gaps between patches); the largest blob is
+the hand, and blobs near it in the image and in depth join it (a finger split off by
+an occluding edge). Of the kept blobs, pixels far from the hand's depth are dropped. :func:`labeled_point_cloud` back-projects the hand's pixels that
 have depth.
 """
 
@@ -73,6 +75,7 @@ def hand_region(
     *,
     z_range_m: tuple[float, float] = (0.2, 1.5),
     join_depth_m: float = 0.15,
+    hand_depth_band_m: float = 0.2,
 ) -> HandRegion:
     """The glove pixels of the hand (see the module docstring).
 
@@ -86,6 +89,10 @@ def hand_region(
         Working depth range; glove-colored pixels outside it are dropped.
     join_depth_m : float
         A blob joins the hand if its median depth is this close to the hand's.
+    hand_depth_band_m : float
+        Pixels of the hand's blobs whose depth lies farther than this from the hand's
+        median depth are something else seen beside the hand (a wall behind it
+        through misregistered color, noise on it in a dark room) and are dropped.
 
     Returns
     -------
@@ -99,7 +106,11 @@ def hand_region(
     glove = (label_image > 0) & ((depth == 0) | valid_depth)
     if not glove.any():
         return _empty_region()
-    closed = cv2.morphologyEx(glove.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    square = np.ones((3, 3), np.uint8)
+    opened = cv2.morphologyEx(glove.astype(np.uint8), cv2.MORPH_OPEN, square)
+    if not opened.any():
+        return _empty_region()
+    closed = cv2.morphologyEx(opened, cv2.MORPH_CLOSE, square)
     count, blobs, stats, _ = cv2.connectedComponentsWithStats(closed, connectivity=8)
     sizes = stats[1:, cv2.CC_STAT_AREA]
     hand = 1 + int(np.argmax(sizes))
@@ -120,7 +131,10 @@ def hand_region(
         )
         if near and abs(_median_depth(depth, blobs == blob) - hand_depth) < join_depth_m:
             keep[blob] = True
-    mask = keep[blobs] & glove
+    # The opening shaved one pixel off thin glove parts: the kept blobs take back the
+    # glove pixels beside them, those whose depth is the hand's (or missing).
+    near_hand = (depth == 0) | (np.abs(depth - hand_depth) < hand_depth_band_m)
+    mask = cv2.dilate(keep[blobs].astype(np.uint8), square).astype(bool) & glove & near_hand
     rows, cols = np.nonzero(mask)
     return HandRegion(
         pixels_uv=np.stack([cols, rows], axis=1).astype(np.int64),

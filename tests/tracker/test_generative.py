@@ -153,6 +153,16 @@ def test_silhouette_term_pulls_in_the_model_and_ignores_what_is_hidden(samples):
     # The same model behind a nearer object (depth 0.2 m everywhere) costs nothing.
     hidden = replace(observation, depth_m=np.full_like(observation.depth_m, 0.2))
     assert silhouette_residuals(PosedHand(samples, shifted), hidden, **settings)[0].energy == 0
+    # A wall 0.4 m behind the hand, seen wherever the hand is not. The hand 1.5 mm
+    # (about 1.3 px) aside has samples just off the mask, within the margin: they cost
+    # nothing, as without the wall, and are not pushed back to the wall's depth.
+    wall_depth = observation.depth_m.copy()
+    wall_depth[observation.outside_px > 0] = truth.translation_m[2] + 0.4
+    wall = replace(observation, depth_m=wall_depth)
+    aside = PosedHand(samples, truth.step(np.r_[0, 0, 0, 0.0015, 0, 0, np.zeros(20)]))
+    no_wall, _ = silhouette_residuals(aside, observation, **settings)
+    with_wall, _ = silhouette_residuals(aside, wall, **settings)
+    assert with_wall.energy == pytest.approx(no_wall.energy) and with_wall.energy < 1e-3
 
 
 def test_prior_limits_temporal_and_fingertip_jacobians(samples):

@@ -139,7 +139,7 @@ def _reference_silhouette(hand, observation, *, weight, margin_px, depth_margin_
     hidden = (seen > 0) & (seen < z - depth_margin_m)
     off_mask = (distance > margin_px) & ~hidden
     off_crop = ~inside & ~hidden
-    in_front = inside & ~off_mask & (seen > 0) & (z < seen - depth_margin_m)
+    in_front = inside & (distance <= 0) & (seen > 0) & (z < seen - depth_margin_m)
     pull, push = np.flatnonzero(off_mask & inside), np.flatnonzero(in_front)
     metres_per_px = z[pull] / fx
     g = observation.gradient[row[pull], col[pull]]

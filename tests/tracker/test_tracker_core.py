@@ -2,6 +2,7 @@
 
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 
@@ -91,6 +92,26 @@ def test_hand_region_drops_far_and_small_glove_colored_things():
     assert len(region) == 900 and set(region.labels) == {2}
     empty = hand_region(np.zeros((10, 10), np.uint8), np.zeros((10, 10), np.float32))
     assert len(empty) == 0
+
+
+def test_hand_region_ignores_glove_colored_noise_on_the_wall_behind():
+    # A dim room: the camera's gain makes a third of a dark wall's pixels glove-like
+    # at random. Dense enough to connect into one blob with the hand, it is noise: the
+    # hand (a palm and a finger 4 px wide) keeps its pixels and nothing else.
+    rng = np.random.default_rng(5)
+    labels = np.where(rng.random((120, 160)) < 0.35, rng.integers(1, 11, (120, 160)), 0)
+    depth = np.full((120, 160), 1.2, np.float32)  # the wall, within the working range
+    hand = np.zeros((120, 160), bool)
+    hand[50:90, 60:100] = True  # palm
+    hand[20:50, 70:74] = True  # finger
+    labels[hand] = 4
+    depth[hand] = 0.6
+    ring = cv2.dilate(hand.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~hand
+    region = hand_region(labels.astype(np.uint8), depth)
+    kept = np.zeros_like(hand)
+    kept[region.pixels_uv[:, 1], region.pixels_uv[:, 0]] = True
+    assert kept[hand].all()
+    assert not (kept & ~hand & ~ring).any()  # at most wall noise touching the hand
 
 
 def test_rigid_fit_recovers_a_transform():

@@ -471,7 +471,9 @@ def silhouette_rows(
             direction[p, 0] = gu * fx / z * metres_per_px
             direction[p, 1] = gv * fy / z * metres_per_px
             direction[p, 2] = -(gu * fx * x + gv * fy * y) / z**2 * metres_per_px
-        elif inside and not off_mask and seen > 0 and z < seen - depth_margin32:
+        elif inside and distance <= 0 and seen > 0 and z < seen - depth_margin32:
+            # Only on the mask: within the margin but off it, ``seen`` is the
+            # background's depth (a wall), which would push the edge far back.
             kind[p] = PUSH
             value[p] = z - (seen - depth_margin32)
             direction[p, 0], direction[p, 1], direction[p, 2] = 0.0, 0.0, 1.0

@@ -5,8 +5,11 @@ Camera-facing model samples are projected into the image:
 - a sample that lands outside the observed hand mask, more than ``margin_px`` from it,
   is pulled toward it: the residual is the distance transform of the mask at the
   sample (minus the margin), converted to metres at the sample's depth;
-- a sample that lands on the hand but lies more than ``depth_margin_m`` in front of
-  the observed depth is pushed back to it (the camera would have seen it there);
+- a sample that lands on the hand (on the mask itself) but lies more than
+  ``depth_margin_m`` in front of the observed depth is pushed back to it (the camera
+  would have seen it there). Samples within the margin but off the mask are not:
+  there the camera sees what lies behind the hand, a wall or a table in a real room,
+  and pushing the hand's edge back to it dragged the fit by decimetres;
 - a sample **behind** the observed depth (by more than the margin) is hidden by
   something in front: the hand itself or an object. It costs nothing, inside or
   outside the mask, so an object passing in front of the hand does not drag it.
