@@ -32,7 +32,9 @@ Conditions a real user brings, each off by default:
 - an occluder: a ball passing in front of the hand, rendered analytically
   (:func:`sphere_depth`) and composited with the same depth test before the noise;
 - misregistration: the color image shifted against depth (:func:`shift_image`) before
-  the color noise; the ground truth stays in the depth camera's frame.
+  the color noise; the ground truth stays in the depth camera's frame;
+- a dim room: ``light`` below 1 raises the camera's gain and with it the color noise,
+  and darkens the image once the gain is at its limit (:func:`builder.color_noise.dim_light`).
 
 Randomness: the background and the sequence's exposure come from
 ``default_rng([seed, 0])``, the noise of frame ``k`` from ``default_rng([seed, 1, k])``;
@@ -58,7 +60,7 @@ import numpy as np
 import tomllib
 from numpy.typing import ArrayLike, NDArray
 
-from builder.color_noise import apply_color_noise, color_noise_preset, sequence_gains
+from builder.color_noise import apply_color_noise, color_noise_preset, dim_light, sequence_gains
 from builder.depth_noise import NOISE_PRESETS, NoisePreset, apply_depth_noise, noise_preset
 from builder.render import GloveRenderer
 from glovedb import __version__
@@ -156,6 +158,10 @@ class SequenceSettings:
     misregistration_px : (2,) tuple of float
         ``(du, dv)``: the color image's content is shifted by this many pixels
         (right, down) against depth and the ground truth.
+    light : float
+        The room's illumination against the noise preset's, in (0, 1]; below 1 the
+        color noise grows with the auto-exposure gain and, past its limit, the image
+        darkens (:func:`builder.color_noise.dim_light`). Needs a noise preset.
     """
 
     trajectory: str
@@ -173,6 +179,7 @@ class SequenceSettings:
     occluder_from_m: tuple[float, float, float] = OCCLUDER_FROM_M
     occluder_to_m: tuple[float, float, float] = OCCLUDER_TO_M
     misregistration_px: tuple[float, float] = (0.0, 0.0)
+    light: float = 1.0
 
     def __post_init__(self) -> None:
         check_choice("background", self.background, BACKGROUNDS)
@@ -195,6 +202,9 @@ class SequenceSettings:
                 f"occluder_radius_m: expected a radius >= 0 m (0: no occluder), "
                 f"got {self.occluder_radius_m}"
             )
+        dim_light(color_noise_preset(self.noise), self.light)  # checks the range
+        if self.light < 1 and self.noise == "none":
+            raise ValueError("light: a dim room needs a camera's noise model (noise is 'none')")
         for name, size in (("occluder_from_m", 3), ("occluder_to_m", 3), ("misregistration_px", 2)):
             vector = as_array(name, getattr(self, name), (size,), np.float64, finite=True)
             object.__setattr__(self, name, tuple(float(value) for value in vector))
@@ -820,8 +830,8 @@ def render_frames(
         settings.background, camera, keypoints, renderer.pattern, rng=scene_rng
     )
     depth_noise = noise_preset(settings.noise)
-    color_noise = color_noise_preset(settings.noise)
-    gains = sequence_gains(color_noise, rng=scene_rng)
+    color_noise, brightness = dim_light(color_noise_preset(settings.noise), settings.light)
+    gains = sequence_gains(color_noise, rng=scene_rng) * brightness
     intrinsics = camera.pinhole
     for frame in range(len(postures)):
         rendering = renderer.render(postures[frame], rotations[frame], translations[frame])

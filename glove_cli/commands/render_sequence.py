@@ -94,6 +94,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="shift of the color image against depth, pixels right and down (sub-pixel "
         "allowed); one number shifts horizontally (default: 0,0)",
     )
+    parser.add_argument(
+        "--light",
+        type=float,
+        metavar="F",
+        help="the room's light against the noise preset's, in (0, 1]: a dim room raises "
+        "the camera's gain and color noise (up to 4x) and darkens the image beyond "
+        "that; needs --noise (default: 1)",
+    )
     parser.set_defaults(run=run)
 
 
@@ -150,6 +158,8 @@ def settings_from_args(args: argparse.Namespace) -> SequenceSettings:
     if args.misregistration is not None:
         shift = numbers("--misregistration", args.misregistration, (1, 2))
         options["misregistration_px"] = shift if len(shift) == 2 else (shift[0], 0.0)
+    if args.light is not None:
+        options["light"] = args.light
     return SequenceSettings(
         trajectory=args.trajectory,
         camera=args.camera,

@@ -14,6 +14,7 @@ from builder.color_noise import (
     apply_color_noise,
     apply_gains,
     color_noise_preset,
+    dim_light,
     sequence_gains,
 )
 from builder.sequence import (
@@ -180,6 +181,9 @@ def test_settings_reject_unknown_choices():
         ({"occluder_from_m": (0.0, 0.1)}, r"occluder_from_m: expected shape \(3,\)"),
         ({"occluder_to_m": (0.0, float("nan"), 0.0)}, "occluder_to_m: contains NaN"),
         ({"misregistration_px": (1.0, 2.0, 3.0)}, r"misregistration_px: expected shape \(2,\)"),
+        ({"light": 0.0, "noise": "kinect_v1"}, r"light: expected a share in \(0, 1\]"),
+        ({"light": 1.5, "noise": "kinect_v1"}, r"light: expected a share in \(0, 1\]"),
+        ({"light": 0.5}, "light: a dim room needs a camera's noise model"),
     ],
 )
 def test_settings_reject_bad_hands_occluders_and_shifts(options, message):
@@ -258,9 +262,10 @@ def test_cli_parses_the_new_options():
         ["render-sequence", "--trajectory", "tr1", "--out", "x", "--hand-length", "0.17",
          "--finger-length", "1.12", "--palm-width", "0.9", "--occluder-radius", "0.03",
          "--occluder-from=-0.1,0.01,-0.05", "--occluder-to", "0.1,0,-0.03",
-         "--misregistration", "2.5"]
+         "--misregistration", "2.5", "--noise", "kinect_v1", "--light", "0.3"]
     )  # fmt: skip
     settings = settings_from_args(args)
+    assert settings.light == 0.3
     assert settings.hand_length_m == 0.17 and settings.palm_width == 0.9
     assert settings.finger_length == (1.12,) * 5
     assert settings.occluder_radius_m == 0.03
@@ -316,6 +321,26 @@ def test_no_color_noise_is_the_identity():
     out = apply_color_noise(image, config, gains=gains, rng=np.random.default_rng(2))
     np.testing.assert_array_equal(out, image)
     np.testing.assert_array_equal(apply_gains(image, np.ones(3)), image)
+
+
+def test_dim_light_raises_the_gain_and_noise_then_darkens():
+    kinect = color_noise_preset("kinect_v1")
+    assert dim_light(kinect, 1.0) == (kinect, 1.0)
+    # Auto exposure makes up for a quarter of the light with 4x gain, noise and all.
+    config, brightness = dim_light(kinect, 0.25)
+    assert config.pixel_sigma == pytest.approx(4 * kinect.pixel_sigma) and brightness == 1.0
+    assert config.blur_sigma_px == kinect.blur_sigma_px
+    # Past the gain's limit the image darkens: a tenth of the light, 40 % brightness.
+    config, brightness = dim_light(kinect, 0.1)
+    assert config.pixel_sigma == pytest.approx(4 * kinect.pixel_sigma)
+    assert brightness == pytest.approx(0.4)
+    dark = apply_color_noise(
+        gray(), config, gains=np.full(3, brightness), rng=np.random.default_rng(0)
+    )
+    mid = np.mean(dark.astype(float))  # sRGB of 0.4 x the linear light of 128: about 85
+    assert 80 < mid < 90
+    with pytest.raises(ValueError, match="light"):
+        dim_light(kinect, -0.5)
 
 
 def test_pixel_noise_has_the_configured_sigma():
@@ -581,6 +606,23 @@ def test_misregistration_shifts_the_color_against_depth(renderer):
 
     np.testing.assert_allclose(centroid(shifted(1.5, 0.25)) - centroid(clean.color), [1.5, 0.25],
                                atol=0.02)  # fmt: skip
+
+
+@pytest.mark.gl
+def test_a_dim_room_keeps_the_depth_and_makes_the_color_noisier(renderer):
+    def frame(light):
+        settings = SequenceSettings("custom", noise="kinect_v1", light=light, seed=2)
+        return next(render_frames(still_hand(), settings, renderer))
+
+    bright, dim = frame(1.0), frame(0.25)
+    np.testing.assert_array_equal(dim.depth_m, bright.depth_m)
+    background = ~cv2.dilate(bright.hand_mask.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(
+        bool
+    )
+    spread = [f.color[background].astype(float).std(axis=0).mean() for f in (bright, dim)]
+    assert 3.3 < spread[1] / spread[0] < 4.5  # the noise times the 4x gain
+    means = [f.color[background].astype(float).mean() for f in (bright, dim)]
+    assert abs(means[1] - means[0]) < 2.0  # auto exposure keeps the brightness
 
 
 @pytest.mark.gl
