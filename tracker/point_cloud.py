@@ -6,8 +6,8 @@ pixels whose depth is missing or inside the working range, freed of isolated pix
 glove-like, dense enough to connect into one blob with the hand) and grouped into
 8-connected blobs (after closing one-pixel gaps between patches); the largest blob is
 the hand, and blobs near it in the image and in depth join it (a finger split off by
-an occluding edge). Of the kept blobs, pixels far from the hand's depth are dropped. :func:`labeled_point_cloud` back-projects the hand's pixels that
-have depth.
+an occluding edge). Of the kept blobs, pixels far from the hand's depth are dropped.
+:func:`labeled_point_cloud` back-projects the hand's pixels that have depth.
 """
 
 from __future__ import annotations
