@@ -41,3 +41,74 @@ def lower_distances(
             if candidate < distance[neighbour] and candidate <= limit:
                 distance[neighbour] = candidate
                 heapq.heappush(heap, (candidate, neighbour))
+
+
+@numba.njit(cache=True, nogil=True)
+def block_medians(
+    depth_m: NDArray[np.float32], stride: int, offsets: NDArray[np.int64]
+) -> NDArray[np.float32]:
+    """Depth ``(h, w)`` of ``stride`` x ``stride`` cells from the lattice ``offsets`` of each.
+
+    Beyond the image the lattice reads 0. A cell's value is the lower median of its
+    positive samples (counted among its non-zero ones), when at least half of the
+    lattice is non-zero; else 0.
+    """
+    height, width = depth_m.shape
+    h = (height + stride - 1) // stride
+    w = (width + stride - 1) // stride
+    lattice = offsets.shape[0] * offsets.shape[0]
+    grid = np.zeros((h, w), np.float32)
+    samples = np.empty(lattice, np.float32)
+    for i in range(h):
+        for j in range(w):
+            non_zero = 0
+            positive = 0
+            for a in offsets:
+                row = i * stride + a
+                for b in offsets:
+                    column = j * stride + b
+                    if row < height and column < width:
+                        d = depth_m[row, column]
+                        if d != 0:
+                            non_zero += 1
+                        if d > 0:
+                            _insert_sorted(samples, positive, d)
+                            positive += 1
+            if 2 * non_zero >= lattice:
+                middle = max(non_zero - 1, 0) // 2
+                grid[i, j] = samples[middle] if middle < positive else np.inf
+    return grid
+
+
+@numba.njit(cache=True, nogil=True)
+def surface_medians(depth_m: NDArray[np.float32], max_step: np.float32) -> NDArray[np.float32]:
+    """Lower median ``(h, w)`` of each positive cell's 3 x 3 neighbours whose depth is
+    positive and within ``max_step`` times the cell's of it; 0 elsewhere."""
+    height, width = depth_m.shape
+    smooth = np.zeros((height, width), np.float32)
+    near = np.empty(9, np.float32)
+    for i in range(height):
+        for j in range(width):
+            centre = depth_m[i, j]
+            if not centre > 0:
+                continue
+            count = 0
+            for row in range(i - 1, i + 2):
+                for column in range(j - 1, j + 2):
+                    if 0 <= row < height and 0 <= column < width:
+                        d = depth_m[row, column]
+                        if d > 0 and not abs(d - centre) > max_step * centre:
+                            _insert_sorted(near, count, d)
+                            count += 1
+            smooth[i, j] = near[(count - 1) // 2] if count else np.inf
+    return smooth
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _insert_sorted(values: NDArray[np.float32], count: int, value: np.float32) -> None:
+    """Insert ``value`` into the ascending ``values[:count]``, making ``values[:count + 1]``."""
+    k = count
+    while k > 0 and values[k - 1] > value:
+        values[k] = values[k - 1]
+        k -= 1
+    values[k] = value

@@ -36,8 +36,10 @@ from fingertips.geodesic import geodesic_candidates
 from fingertips.heatmap import (
     HAND_BAND_M,
     HAND_DEPTH_RANGE_M,
+    HandHeatmaps,
     HeatmapStage,
     heatmap_peaks,
+    start_heatmaps,
 )
 from fingertips.segmentation import SEGMENTATION_METHODS, SegmentationMethod, segment_hand
 from fingertips.verify import verify_peaks
@@ -472,17 +474,21 @@ def detect_fingertips(
         keep = _separated(candidates, candidates.confidences, config.voting.min_separation_m)
         detections = _candidate_detections(candidates, None, camera, keep)
     else:
-        candidates, probability, hand = verified_candidates(depth, camera, model, config=config)
+        heat = None
+        if config.heatmap_min_probability > 0 and model.heatmap is not None:
+            heat = start_heatmaps(depth, camera, model.heatmap)  # runs while the forest votes
+        candidates, probability, _ = verified_candidates(depth, camera, model, config=config)
         # With the verifier off (min_tip_probability 0) the vote weight ranks, as without one.
         rank_by = probability if config.min_tip_probability > 0 else candidates.confidences
         keep = (probability >= config.min_tip_probability) & _separated(
             candidates, rank_by, config.voting.min_separation_m
         )
         detections = _candidate_detections(candidates, probability, camera, keep)
-        if config.heatmap_min_probability > 0 and model.heatmap is not None:
+        if heat is not None and model.heatmap is not None:
             detections += _heatmap_detections(
-                depth, camera, model.heatmap, config, candidates, probability, detections, hand
-            )
+                depth, camera, model.heatmap, config, candidates, probability, detections,
+                heat.result(),
+            )  # fmt: skip
         if model.calibration is not None:
             detections = calibrated_detections(detections, model.calibration)
     if model_tips_m is None:
@@ -577,10 +583,11 @@ def _heatmap_detections(
     candidates: FrameCandidates,
     candidate_probability: NDArray[np.float32],
     forest_detections: tuple[Detection, ...],
-    hand_depth_m: NDArray[np.float32] | None,
+    heatmaps: HandHeatmaps,
 ) -> tuple[Detection, ...]:
     """The heatmap's accepted peaks, most probable first, each farther than the voting's
-    ``min_separation_m`` from every forest detection and every more probable one."""
+    ``min_separation_m`` from every forest detection and every more probable one;
+    ``heatmaps`` are the frame's (:func:`fingertips.heatmap.start_heatmaps`)."""
     peaks, probability = heatmap_peaks(
         depth_m,
         camera,
@@ -589,7 +596,7 @@ def _heatmap_detections(
         candidates.confidences,
         candidate_probability,
         min_tip_probability=config.min_tip_probability,
-        hand_depth_m=hand_depth_m,
+        heatmaps=heatmaps,
     )
     separation = config.voting.min_separation_m
     taken = list(detection_points(forest_detections))

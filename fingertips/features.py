@@ -22,6 +22,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fingertips._features_kernels import depth_within, filled_with_edge, measured_on_grid
 from glovedb._validate import as_array
 
 BACKGROUND_DEPTH_M = 10.0
@@ -104,8 +105,7 @@ def mask_depth_range(depth_m: ArrayLike, *, near_m: float, far_m: float) -> NDAr
     depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
     if not 0 <= near_m < far_m:
         raise ValueError(f"near_m, far_m: expected 0 <= near < far, got {near_m}, {far_m}")
-    inside = (depth >= near_m) & (depth <= far_m)
-    return np.where(inside, depth, np.float32(0.0)).astype(np.float32)
+    return depth_within(depth, np.float32(near_m), np.float32(far_m))
 
 
 def nearest_depth(depth_m: NDArray[np.float32], *, rank: int = 20) -> float:
@@ -113,8 +113,7 @@ def nearest_depth(depth_m: NDArray[np.float32], *, rank: int = 20) -> float:
 
     A few spurious near pixels do not move it. Returns 0 when nothing is measured.
     """
-    grid = depth_m[::2, ::2]
-    measured = grid[grid > 0]
+    measured = measured_on_grid(depth_m, 2)
     if measured.size == 0:
         return 0.0
     k = min(rank, measured.size - 1)
@@ -145,7 +144,7 @@ def nearest_band(depth_m: ArrayLike, *, band_m: float) -> NDArray[np.float32]:
     nearest = nearest_depth(depth)
     if not np.isfinite(band_m) or nearest == 0:
         return depth.copy()
-    return np.where(depth <= nearest + band_m, depth, np.float32(0.0)).astype(np.float32)
+    return depth_within(depth, np.float32(-np.inf), np.float32(nearest + band_m))
 
 
 def stride_for_spacing(depth_m: ArrayLike, focal_px: float, *, spacing_m: float) -> int:
@@ -222,8 +221,9 @@ def probe_image(depth_m: NDArray[np.float32]) -> NDArray[np.float32]:
     -------
     (H + 2, W + 2) float32
     """
-    filled = np.where(depth_m > 0, depth_m, np.float32(BACKGROUND_DEPTH_M)).astype(np.float32)
-    return np.pad(filled, 1, mode="edge")
+    if depth_m.size == 0:
+        raise ValueError(f"depth_m: expected a non-empty image, got shape {depth_m.shape}")
+    return filled_with_edge(depth_m, np.float32(BACKGROUND_DEPTH_M))
 
 
 def read_probes(padded: NDArray[np.float32], u: NDArray, v: NDArray) -> NDArray[np.float32]:

@@ -88,14 +88,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.ndimage import distance_transform_edt
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from fingertips._geodesic_kernels import lower_distances
+from fingertips._geodesic_kernels import block_medians, lower_distances, surface_medians
 from fingertips.features import intrinsics_array, stride_for_budget, stride_for_spacing
 from glovedb._validate import as_array
 
@@ -488,18 +488,10 @@ def cell_grid(
     -------
     CellGrid
     """
-    h, w = -(-depth_m.shape[0] // stride), -(-depth_m.shape[1] // stride)
-    padded = np.zeros((h * stride, w * stride), np.float32)
-    padded[: depth_m.shape[0], : depth_m.shape[1]] = depth_m
     samples = min(stride, BLOCK_SAMPLES)
     offsets = (2 * np.arange(samples) + 1) * stride // (2 * samples)
-    blocks = padded.reshape(h, stride, w, stride)[:, offsets][:, :, :, offsets]
-    blocks = blocks.transpose(0, 2, 1, 3).reshape(h, w, samples * samples)
-    counts = np.count_nonzero(blocks, axis=-1)
-    ordered = np.sort(np.where(blocks > 0, blocks, np.float32(np.inf)), axis=-1)
-    middle = np.maximum(counts - 1, 0) // 2
-    grid = np.take_along_axis(ordered, middle[..., None], axis=-1)[..., 0]
-    grid = np.where(2 * counts >= samples * samples, grid, np.float32(0.0))
+    grid = block_medians(depth_m, stride, offsets.astype(np.int64))
+    h, w = grid.shape
     centre = (stride - 1) / 2
     v, u = np.mgrid[0:h, 0:w].astype(np.float32)
     pixels = np.stack(
@@ -525,17 +517,7 @@ def median_3x3(depth_m: NDArray[np.float32], *, max_step: float) -> NDArray[np.f
     (h, w) float32
         An existing value of each neighbourhood, metres.
     """
-    measured = depth_m > 0
-    rows, cols = np.nonzero(measured)
-    padded = np.pad(np.where(measured, depth_m, np.float32(np.inf)), 1, constant_values=np.inf)
-    stack = np.stack([padded[rows + r, cols + c] for r in range(3) for c in range(3)], axis=-1)
-    centre = depth_m[rows, cols][:, None]
-    stack[np.abs(stack - centre) > max_step * centre] = np.inf
-    middle = (np.count_nonzero(np.isfinite(stack), axis=-1) - 1) // 2
-    median = np.take_along_axis(np.sort(stack, axis=-1), middle[:, None], axis=-1)[:, 0]
-    smooth = np.zeros_like(depth_m, dtype=np.float32)
-    smooth[rows, cols] = median
-    return smooth
+    return surface_medians(depth_m, np.float32(max_step))
 
 
 @dataclass(frozen=True)
@@ -686,8 +668,9 @@ def palm_centre(graph: SurfaceGraph, inside: NDArray[np.bool_]) -> tuple[int, fl
     mask = np.zeros(graph.node_of_cell.shape, np.uint8)
     rows, cols = graph.cells[core].T
     mask[rows, cols] = 1
-    distance = cv2.distanceTransform(np.pad(mask, 1), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    distance = distance[1:-1, 1:-1]
+    # Exact, and the same on every run: OpenCV's precise transform is off by a rounding
+    # step in some cells, differently when other threads keep its thread pool busy.
+    distance = distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1].astype(np.float32)
     row, col = np.unravel_index(int(np.argmax(distance)), distance.shape)
     return int(graph.node_of_cell[row, col]), float(distance[row, col])
 

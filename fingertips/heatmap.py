@@ -32,6 +32,7 @@ are trained by :mod:`fingertips.heatmap_training` (docs/fingertips.md).
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -391,6 +392,10 @@ class HeatmapNetwork:
         ``logits`` ``(N, GRID, GRID)`` float32.
     passes : int
         Averaged passes (:func:`crop_views`).
+
+    onnxruntime's threads do not spin while they wait for work: the detector runs the
+    network beside the forest (:func:`start_heatmaps`), and spinning threads would take
+    the cores the forest and the frame decoding need.
     """
 
     def __init__(self, network_onnx: bytes | NDArray[np.uint8], passes: int) -> None:
@@ -399,8 +404,10 @@ class HeatmapNetwork:
         if passes not in PASSES:
             raise ValueError(f"passes: expected one of {PASSES}, got {passes}")
         self.passes = passes
+        self._worker: ThreadPoolExecutor | None = None
         options = onnxruntime.SessionOptions()
         options.inter_op_num_threads = 1
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         options.log_severity_level = 3
         content = network_onnx if isinstance(network_onnx, bytes) else network_onnx.tobytes()
         try:
@@ -416,6 +423,15 @@ class HeatmapNetwork:
         (logits,) = self._session.run(None, {"crops": views})
         probability = 1.0 / (1.0 + np.exp(-np.asarray(logits, dtype=np.float64)))
         return unturn_maps(probability.astype(np.float32), self.passes)
+
+    def submit(self, task: Callable[[], HandHeatmaps]) -> Future[HandHeatmaps]:
+        """Run ``task`` in this network's own thread (one, made on first use).
+
+        onnxruntime releases the GIL while it runs, so the caller can go on meanwhile.
+        """
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(1, thread_name_prefix="glove-heatmap")
+        return self._worker.submit(task)
 
 
 @dataclass(frozen=True, eq=False)
@@ -485,6 +501,55 @@ def boosted_probability(stage: HeatmapStage, features: ArrayLike) -> NDArray[np.
     return (1.0 / (1.0 + np.exp(-log_odds))).astype(np.float32)
 
 
+@dataclass(frozen=True)
+class HandHeatmaps:
+    """The crop centre of a frame and the network's maps of its crop.
+
+    Attributes
+    ----------
+    centre : (3,) float64 or None
+        :func:`hand_centre`; None when no object is in view.
+    maps : (P, GRID, GRID) float32 or None
+        The turned-back maps of every pass; None without a centre.
+    """
+
+    centre: NDArray[np.float64] | None
+    maps: NDArray[np.float32] | None
+
+
+def hand_heatmaps(
+    depth_m: NDArray[np.float32],
+    intrinsics: ArrayLike,
+    network: Callable[[NDArray[np.float32]], NDArray[np.float32]],
+    *,
+    hand_depth_m: NDArray[np.float32] | None = None,
+) -> HandHeatmaps:
+    """The crop centre and the maps of the crop (steps 1 and 2 of the module docstring).
+
+    Parameters are those of :func:`frame_heat_peaks`.
+    """
+    camera = intrinsics_array(intrinsics)
+    centre = hand_centre(depth_m, camera, hand_depth_m=hand_depth_m)
+    if centre is None:
+        return HandHeatmaps(None, None)
+    return HandHeatmaps(centre, network(hand_crop(depth_m, camera, centre)))
+
+
+def start_heatmaps(
+    depth_m: NDArray[np.float32], intrinsics: ArrayLike, stage: HeatmapStage
+) -> Future[HandHeatmaps]:
+    """:func:`hand_heatmaps` of a frame with the stage's network, in the network's thread.
+
+    The detector starts it before the forest and collects it for
+    :func:`heatmap_peaks` (``heatmaps``): the network's passes, the longest part of a
+    frame, run while the forest votes.
+    """
+    depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
+    camera = intrinsics_array(intrinsics)
+    network = stage.network
+    return network.submit(lambda: hand_heatmaps(depth, camera, network))
+
+
 def frame_heat_peaks(
     depth_m: NDArray[np.float32],
     intrinsics: ArrayLike,
@@ -496,6 +561,7 @@ def frame_heat_peaks(
     min_value: float,
     min_tip_probability: float,
     hand_depth_m: NDArray[np.float32] | None = None,
+    heatmaps: HandHeatmaps | None = None,
 ) -> tuple[HeatPeaks, NDArray[np.float32]]:
     """The heatmap's peaks in one frame and their verifier features.
 
@@ -513,6 +579,9 @@ def frame_heat_peaks(
         See :func:`heat_peaks`.
     hand_depth_m : (H, W) float32, optional
         See :func:`hand_centre`.
+    heatmaps : HandHeatmaps, optional
+        The frame's :func:`hand_heatmaps`, when already made (:func:`start_heatmaps`);
+        then ``network`` and ``hand_depth_m`` are not used.
 
     Returns
     -------
@@ -521,13 +590,14 @@ def frame_heat_peaks(
     features : (K, len(HEAT_PEAK_FEATURES)) float32
     """
     camera = intrinsics_array(intrinsics)
-    centre = hand_centre(depth_m, camera, hand_depth_m=hand_depth_m)
-    if centre is None:
+    if heatmaps is None:
+        heatmaps = hand_heatmaps(depth_m, camera, network, hand_depth_m=hand_depth_m)
+    centre, maps = heatmaps.centre, heatmaps.maps
+    if centre is None or maps is None:
         none = HeatPeaks(
             np.zeros((0, 2), np.int64), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0)
         )
         return none, np.zeros((0, len(HEAT_PEAK_FEATURES)), np.float32)
-    maps = network(hand_crop(depth_m, camera, centre))
     peaks = heat_peaks(maps.mean(axis=0), centre, depth_m, camera, min_value=min_value)
     features = heat_peak_features(
         peaks,
@@ -553,6 +623,7 @@ def heatmap_peaks(
     *,
     min_tip_probability: float,
     hand_depth_m: NDArray[np.float32] | None = None,
+    heatmaps: HandHeatmaps | None = None,
 ) -> tuple[HeatPeaks, NDArray[np.float32]]:
     """The heatmap's peaks in one frame and their verifier probabilities ``(K,)``.
 
@@ -569,5 +640,6 @@ def heatmap_peaks(
         min_value=stage.min_value,
         min_tip_probability=min_tip_probability,
         hand_depth_m=hand_depth_m,
+        heatmaps=heatmaps,
     )
     return peaks, boosted_probability(stage, features)

@@ -1,5 +1,6 @@
 """``glove bench lookup``: search latency, throughput, memory and accuracy;
-``glove bench track``: end-to-end tracking speed and per-stage latency."""
+``glove bench track``: end-to-end tracking speed and per-stage latency;
+``glove bench fingertips``: end-to-end fingertip detection speed and per-stage latency."""
 
 from __future__ import annotations
 
@@ -56,6 +57,24 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     track.add_argument("--json", action="store_true", help="print one JSON object")
     track.set_defaults(run=run_track)
+    fingertips = kinds.add_parser(
+        "fingertips",
+        help="end-to-end fingertip detection speed: frames/s with decoding, per-stage latency",
+        description="Detect fingertips in every frame of SOURCE as `glove fingertips detect` "
+        "does (writing nothing) and report the time to the first detections, end-to-end "
+        "frames/s after the first frame (reading and decoding included) and per-stage "
+        "median, p95 and p99 latency.",
+    )
+    fingertips.add_argument("source", help="RGB-D folder (depth/ is enough) or RealSense .bag")
+    fingertips.add_argument("--model", help="model file (.npz; default: the shipped model)")
+    fingertips.add_argument(
+        "--read-ahead",
+        type=int,
+        default=2,
+        help="frames decoded ahead in a thread while one is detected (default 2; 0: in turn)",
+    )
+    fingertips.add_argument("--json", action="store_true", help="print one JSON object")
+    fingertips.set_defaults(run=run_fingertips)
 
 
 def run_lookup(args: argparse.Namespace) -> int:
@@ -121,4 +140,33 @@ def run_track(args: argparse.Namespace) -> int:
     print(f"  {'stage':10s} {'median':>8s} {'p95':>8s} {'p99':>8s} {'max':>8s}  ms")
     for stage, t in figures["stages_ms"].items():
         print(f"  {stage:10s} {t['median']:8.2f} {t['p95']:8.2f} {t['p99']:8.2f} {t['max']:8.2f}")
+    return 0
+
+
+def run_fingertips(args: argparse.Namespace) -> int:
+    import json
+
+    from fingertips.benchmark import benchmark_detection
+
+    if not 0 <= args.read_ahead <= 64:
+        raise ValueError(f"--read-ahead: expected 0 to 64, got {args.read_ahead}")
+    figures = benchmark_detection(args.source, args.model, read_ahead=args.read_ahead).as_dict()
+    if args.json:
+        print(json.dumps(figures))
+        return 0
+    machine = figures["machine"]
+    model = args.model or "the shipped model"
+    print(f"{args.source} with {model}: {figures['frames']} frames, {figures['detections']} "
+          f"fingertips ({machine['cpu']}, {machine['cores']} cores)")  # fmt: skip
+    since_launch = figures["first_detection_since_launch_s"]
+    launch = "" if since_launch is None else f" ({since_launch:.2f} s after the command started)"
+    print(f"  startup            {figures['startup_s']:.2f} s, first detections after "
+          f"{figures['first_detection_s']:.2f} s{launch}")  # fmt: skip
+    print(f"  end to end         {figures['end_to_end_fps']:.1f} frames/s, "
+          f"{figures['end_to_end_ms_per_frame']} ms per frame after the first "
+          f"(read ahead {figures['read_ahead']})")  # fmt: skip
+    print(f"  {'stage':10s} {'median':>8s} {'p95':>8s} {'p99':>8s} {'mean':>8s} {'max':>8s}  ms")
+    for stage, t in figures["stages_ms"].items():
+        print(f"  {stage:10s} {t['median']:8.2f} {t['p95']:8.2f} {t['p99']:8.2f} "
+              f"{t['mean']:8.2f} {t['max']:8.2f}")  # fmt: skip
     return 0

@@ -1,0 +1,187 @@
+"""The compiled and overlapped paths of detection give what the plain NumPy ones gave.
+
+Each reference below is the NumPy code the fast path replaced, kept here as the
+definition the kernels are held to, bit for bit.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+from scipy.ndimage import distance_transform_edt
+
+from fingertips.detect import hand_depth, model_detector_config
+from fingertips.features import (
+    BACKGROUND_DEPTH_M,
+    mask_depth_range,
+    nearest_band,
+    nearest_depth,
+    probe_image,
+)
+from fingertips.forest import DEFAULT_MODEL_PATH, load_forest
+from fingertips.geodesic import cell_grid, median_3x3, palm_centre, surface_graph
+from fingertips.heatmap import hand_heatmaps, heatmap_peaks, start_heatmaps
+
+CAMERA = np.array([525.0, 525.0, 319.5, 239.5])
+
+
+def _awkward_depth(seed: int, shape: tuple[int, int] = (61, 83)) -> NDArray[np.float32]:
+    """Depth with holes, negative, NaN and inf values, and values on the float32
+    neighbours of the thresholds used below."""
+    rng = np.random.default_rng(seed)
+    depth = rng.uniform(0.1, 2.2, shape).astype(np.float32)
+    edges = np.array([0.15, 2.0, 0.6, 0.8], np.float32)
+    special = np.concatenate(
+        [edges, np.nextafter(edges, np.float32(0)), np.nextafter(edges, np.float32(9))]
+    )
+    depth.ravel()[rng.integers(0, depth.size, 200)] = rng.choice(special, 200)
+    depth[rng.uniform(size=shape) < 0.2] = 0.0
+    depth.ravel()[rng.integers(0, depth.size, 5)] = [-0.5, np.nan, np.inf, -np.inf, np.nan]
+    return depth
+
+
+def _reference_mask_depth_range(depth: NDArray[np.float32], near: float, far: float) -> NDArray:
+    inside = (depth >= near) & (depth <= far)
+    return np.where(inside, depth, np.float32(0.0)).astype(np.float32)
+
+
+def _reference_nearest_band(depth: NDArray[np.float32], band_m: float) -> NDArray:
+    grid = depth[::2, ::2]
+    measured = grid[grid > 0]
+    if measured.size == 0:
+        return depth.copy()
+    k = min(20, measured.size - 1)
+    nearest = float(np.partition(measured, k)[k])
+    return np.where(depth <= nearest + band_m, depth, np.float32(0.0)).astype(np.float32)
+
+
+def _reference_probe_image(depth: NDArray[np.float32]) -> NDArray:
+    filled = np.where(depth > 0, depth, np.float32(BACKGROUND_DEPTH_M)).astype(np.float32)
+    return np.pad(filled, 1, mode="edge")
+
+
+def _reference_cell_grid_depth(depth: NDArray[np.float32], stride: int) -> NDArray:
+    h, w = -(-depth.shape[0] // stride), -(-depth.shape[1] // stride)
+    padded = np.zeros((h * stride, w * stride), np.float32)
+    padded[: depth.shape[0], : depth.shape[1]] = depth
+    samples = min(stride, 3)
+    offsets = (2 * np.arange(samples) + 1) * stride // (2 * samples)
+    blocks = padded.reshape(h, stride, w, stride)[:, offsets][:, :, :, offsets]
+    blocks = blocks.transpose(0, 2, 1, 3).reshape(h, w, samples * samples)
+    counts = np.count_nonzero(blocks, axis=-1)
+    ordered = np.sort(np.where(blocks > 0, blocks, np.float32(np.inf)), axis=-1)
+    middle = np.maximum(counts - 1, 0) // 2
+    grid = np.take_along_axis(ordered, middle[..., None], axis=-1)[..., 0]
+    return np.where(2 * counts >= samples * samples, grid, np.float32(0.0)).astype(np.float32)
+
+
+def _reference_median_3x3(depth: NDArray[np.float32], max_step: float) -> NDArray:
+    measured = depth > 0
+    rows, cols = np.nonzero(measured)
+    padded = np.pad(np.where(measured, depth, np.float32(np.inf)), 1, constant_values=np.inf)
+    stack = np.stack([padded[rows + r, cols + c] for r in range(3) for c in range(3)], axis=-1)
+    centre = depth[rows, cols][:, None]
+    stack[np.abs(stack - centre) > max_step * centre] = np.inf
+    middle = (np.count_nonzero(np.isfinite(stack), axis=-1) - 1) // 2
+    median = np.take_along_axis(np.sort(stack, axis=-1), middle[:, None], axis=-1)[:, 0]
+    smooth = np.zeros_like(depth, dtype=np.float32)
+    smooth[rows, cols] = median
+    return smooth
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_depth_passes_match_numpy_bit_for_bit(seed: int) -> None:
+    depth = _awkward_depth(seed)
+    masked = mask_depth_range(depth, near_m=0.15, far_m=2.0)
+    np.testing.assert_array_equal(masked, _reference_mask_depth_range(depth, 0.15, 2.0))
+    assert masked.dtype == np.float32
+    for band in (0.2, 0.45, math.inf):
+        np.testing.assert_array_equal(
+            nearest_band(masked, band_m=band), _reference_nearest_band(masked, band)
+        )
+    probes = probe_image(masked)
+    np.testing.assert_array_equal(probes, _reference_probe_image(masked))
+    assert probes.dtype == np.float32 and probes.shape == (63, 85)
+    view = masked[3:40:2, 5:70:3]  # not contiguous
+    np.testing.assert_array_equal(probe_image(view), _reference_probe_image(view))
+    np.testing.assert_array_equal(
+        nearest_band(view, band_m=0.3), _reference_nearest_band(view, 0.3)
+    )
+
+
+def test_nearest_depth_of_nothing_and_probe_image_of_nothing() -> None:
+    assert nearest_depth(np.zeros((4, 5), np.float32)) == 0.0
+    with pytest.raises(ValueError, match="depth_m"):
+        probe_image(np.zeros((0, 5), np.float32))
+
+
+@pytest.mark.parametrize("stride", [1, 2, 3, 4, 5, 7])
+def test_cell_grid_matches_numpy_bit_for_bit(stride: int) -> None:
+    depth = np.nan_to_num(_awkward_depth(stride), nan=0.0, posinf=0.0, neginf=0.0)
+    depth = np.maximum(depth, 0.0)  # cell_grid takes finite depth, 0 where missing
+    grid = cell_grid(depth, stride, origin_uv=(7, 11))
+    np.testing.assert_array_equal(grid.depth_m, _reference_cell_grid_depth(depth, stride))
+    assert grid.depth_m.dtype == np.float32
+
+
+@pytest.mark.parametrize("max_step", [0.0, 0.01, 0.05, 10.0])
+def test_median_3x3_matches_numpy_bit_for_bit(max_step: float) -> None:
+    for seed in range(3):
+        depth = np.maximum(np.nan_to_num(_awkward_depth(seed), nan=0.0, posinf=0.0), 0.0)
+        depth = np.round(depth, 2)  # ties within the neighbourhoods
+        smooth = median_3x3(depth, max_step=max_step)
+        np.testing.assert_array_equal(smooth, _reference_median_3x3(depth, max_step))
+
+
+def test_palm_centre_is_the_exact_largest_inscribed_disc() -> None:
+    rng = np.random.default_rng(3)
+    depth = np.zeros((40, 50), np.float32)
+    depth[5:33, 8:45] = 0.5 + rng.uniform(0, 0.002, (28, 37)).astype(np.float32)
+    depth[rng.uniform(size=depth.shape) < 0.05] = 0.0
+    graph = surface_graph(cell_grid(depth, 1), CAMERA, max_slope=3.0)
+    node, radius = palm_centre(graph, np.ones(len(graph.points_m), bool))
+    mask = np.zeros(depth.shape, np.uint8)
+    mask[tuple(graph.cells.T)] = 1
+    on_cut = np.zeros(len(graph.points_m), bool)
+    on_cut[graph.cut_pairs.ravel()] = True
+    mask[tuple(graph.cells[on_cut].T)] = 0
+    exact = distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1]
+    assert radius == pytest.approx(exact.max(), rel=1e-7)
+    assert exact[tuple(graph.cells[node])] == exact.max()
+
+
+def _hand_like_depth() -> NDArray[np.float32]:
+    """A palm with four fingers and a thumb at 0.55 m in front of a wall."""
+    depth = np.full((480, 640), 1.6, np.float32)
+    depth[250:360, 270:370] = 0.55
+    for k, column in enumerate((272, 297, 322, 347)):
+        depth[150 + 10 * k : 250, column : column + 18] = 0.54
+    depth[300:320, 370:430] = 0.545
+    return depth
+
+
+def test_overlapped_heatmaps_give_the_sequential_detections() -> None:
+    model = load_forest(DEFAULT_MODEL_PATH)
+    assert model.heatmap is not None
+    config = model_detector_config(model)
+    depth = _hand_like_depth()
+    started = start_heatmaps(depth, CAMERA, model.heatmap).result()
+    hand = hand_depth(depth, model, depth_band_m=config.depth_band_m)
+    sequential = hand_heatmaps(depth, CAMERA, model.heatmap.heatmaps, hand_depth_m=hand)
+    assert started.centre is not None and sequential.centre is not None
+    np.testing.assert_array_equal(started.centre, sequential.centre)
+    np.testing.assert_array_equal(started.maps, sequential.maps)
+    candidates = np.array([[0.0, -0.05, 0.55]])
+    common = (depth, CAMERA, model.heatmap, candidates, np.array([2.0]), np.array([0.8]))
+    with_started = heatmap_peaks(*common, min_tip_probability=0.75, heatmaps=started)
+    plain = heatmap_peaks(*common, min_tip_probability=0.75, hand_depth_m=hand)
+    np.testing.assert_array_equal(with_started[0].xyz_m, plain[0].xyz_m)
+    np.testing.assert_array_equal(with_started[1], plain[1])
+
+
+def test_no_object_in_view_gives_no_heatmaps() -> None:
+    model = load_forest(DEFAULT_MODEL_PATH)
+    assert model.heatmap is not None
+    empty = start_heatmaps(np.zeros((48, 64), np.float32), CAMERA, model.heatmap).result()
+    assert empty.centre is None and empty.maps is None
