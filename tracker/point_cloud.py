@@ -132,14 +132,22 @@ def hand_region(
         if near and abs(_median_depth(depth, blobs == blob) - hand_depth) < join_depth_m:
             keep[blob] = True
     # The opening shaved one pixel off thin glove parts: the kept blobs take back the
-    # glove pixels beside them, those whose depth is the hand's (or missing).
-    near_hand = (depth == 0) | (np.abs(depth - hand_depth) < hand_depth_band_m)
-    mask = cv2.dilate(keep[blobs].astype(np.uint8), square).astype(bool) & glove & near_hand
-    rows, cols = np.nonzero(mask)
+    # glove pixels beside them, those whose depth is the hand's (or missing). Within the
+    # kept blobs' bounding box (one pixel wider), so the row-major order is the frame's.
+    kept = np.flatnonzero(keep)
+    left = max(int(stats[kept, 0].min()) - 1, 0)
+    top = max(int(stats[kept, 1].min()) - 1, 0)
+    right = int((stats[kept, 0] + stats[kept, 2]).max()) + 1
+    bottom = int((stats[kept, 1] + stats[kept, 3]).max()) + 1
+    box = (slice(top, bottom), slice(left, right))
+    depth_box = depth[box]
+    near_hand = (depth_box == 0) | (np.abs(depth_box - hand_depth) < hand_depth_band_m)
+    grown = cv2.dilate(keep[blobs[box]].astype(np.uint8), square).astype(bool)
+    rows, cols = np.nonzero(grown & glove[box] & near_hand)
     return HandRegion(
-        pixels_uv=np.stack([cols, rows], axis=1).astype(np.int64),
-        labels=label_image[rows, cols].astype(np.uint8),
-        depth_m=depth[rows, cols],
+        pixels_uv=np.stack([cols + left, rows + top], axis=1).astype(np.int64),
+        labels=label_image[box][rows, cols].astype(np.uint8),
+        depth_m=depth_box[rows, cols],
     )
 
 

@@ -23,6 +23,16 @@ def pattern():
     return load_pattern()
 
 
+def test_compiled_classification_is_the_table_lookup(pattern):
+    table = nominal_table(pattern)
+    rng = np.random.default_rng(8)
+    image = rng.integers(0, 256, (48, 64, 3)).astype(np.uint8)
+    for rgb in (image, image[::2, 1::3], np.ascontiguousarray(image[..., ::-1])):
+        cells = rgb >> 3
+        expected = table.table[cells[..., 0], cells[..., 1], cells[..., 2]]
+        np.testing.assert_array_equal(table.classify(rgb), expected)
+
+
 def test_nominal_table_classifies_glove_colors_under_lighting_changes(pattern):
     table = nominal_table(pattern)
     assert table.table.shape == (32, 32, 32) and table.table.dtype == np.uint8
