@@ -1,12 +1,15 @@
 """The color-labeled point cloud of the glove (thesis Eq. 4.1) and the hand's pixels.
 
 :func:`hand_region` picks the glove pixels that belong to the hand: classified glove
-pixels whose depth is missing or inside the working range, freed of isolated pixels
-(a morphological opening: a dark room's color noise makes scattered background pixels
-glove-like, dense enough to connect into one blob with the hand) and grouped into
-8-connected blobs (after closing one-pixel gaps between patches); the largest blob is
-the hand, and blobs near it in the image and in depth join it (a finger split off by
-an occluding edge). Of the kept blobs, pixels far from the hand's depth are dropped.
+pixels whose depth is missing or inside the working range, grouped into 8-connected
+blobs (after closing one-pixel gaps between patches); the blob with the most solid
+glove (what a 3x3 opening keeps) is the hand, and blobs near it in the image and in
+depth join it (a finger split off by an occluding edge). Of the kept blobs, pixels far
+from the hand's depth are dropped. "Solid" and the depth band matter in a dark room:
+the camera's gain makes scattered background pixels glove-like, dense enough to
+connect into one large blob with the hand; they do not survive the opening, so they
+neither choose the hand nor set its depth, and those on a wall behind it fall outside
+the band.
 :func:`labeled_point_cloud` back-projects the hand's pixels that have depth.
 """
 
@@ -107,20 +110,23 @@ def hand_region(
     if not glove.any():
         return _empty_region()
     square = np.ones((3, 3), np.uint8)
-    opened = cv2.morphologyEx(glove.astype(np.uint8), cv2.MORPH_OPEN, square)
-    if not opened.any():
-        return _empty_region()
-    closed = cv2.morphologyEx(opened, cv2.MORPH_CLOSE, square)
+    closed = cv2.morphologyEx(glove.astype(np.uint8), cv2.MORPH_CLOSE, square)
     count, blobs, stats, _ = cv2.connectedComponentsWithStats(closed, connectivity=8)
-    sizes = stats[1:, cv2.CC_STAT_AREA]
+    # Solid glove: what survives an opening (isolated pixels, a dark room's color noise,
+    # do not). The hand is the blob with the most of it, and its depth is the solid
+    # part's: noise connected to the hand into one blob must not decide either.
+    solid = cv2.morphologyEx(glove.astype(np.uint8), cv2.MORPH_OPEN, square).astype(bool)
+    sizes = np.bincount(blobs[solid], minlength=count)[1:]
+    if not sizes.any():
+        return _empty_region()
     hand = 1 + int(np.argmax(sizes))
     keep = np.zeros(count, bool)
     keep[hand] = True
-    hand_depth = _median_depth(depth, blobs == hand)
+    hand_depth = _median_depth(depth, (blobs == hand) & solid)
     x, y, w, h = stats[hand, :4]
     margin = max(w, h) // 2
     for blob in range(1, count):
-        if blob == hand or sizes[blob - 1] < 20:
+        if blob == hand or stats[blob, cv2.CC_STAT_AREA] < 20:
             continue
         bx, by, bw, bh = stats[blob, :4]
         near = (
@@ -131,19 +137,18 @@ def hand_region(
         )
         if near and abs(_median_depth(depth, blobs == blob) - hand_depth) < join_depth_m:
             keep[blob] = True
-    # The opening shaved one pixel off thin glove parts: the kept blobs take back the
-    # glove pixels beside them, those whose depth is the hand's (or missing). Within the
-    # kept blobs' bounding box (one pixel wider), so the row-major order is the frame's.
+    # Of the kept blobs, the glove pixels at the hand's depth (or without depth), within
+    # their bounding box, so that the row-major order is the frame's,
     kept = np.flatnonzero(keep)
-    left = max(int(stats[kept, 0].min()) - 1, 0)
-    top = max(int(stats[kept, 1].min()) - 1, 0)
-    right = int((stats[kept, 0] + stats[kept, 2]).max()) + 1
-    bottom = int((stats[kept, 1] + stats[kept, 3]).max()) + 1
+    left, top = int(stats[kept, 0].min()), int(stats[kept, 1].min())
+    right = int((stats[kept, 0] + stats[kept, 2]).max())
+    bottom = int((stats[kept, 1] + stats[kept, 3]).max())
     box = (slice(top, bottom), slice(left, right))
     depth_box = depth[box]
     near_hand = (depth_box == 0) | (np.abs(depth_box - hand_depth) < hand_depth_band_m)
-    grown = cv2.dilate(keep[blobs[box]].astype(np.uint8), square).astype(bool)
-    rows, cols = np.nonzero(grown & glove[box] & near_hand)
+    # and within 2 px of solid glove (a finger's sliver beside an occluder stays).
+    beside_solid = cv2.dilate(solid[box].astype(np.uint8), np.ones((5, 5), np.uint8))
+    rows, cols = np.nonzero(keep[blobs[box]] & glove[box] & near_hand & beside_solid.astype(bool))
     return HandRegion(
         pixels_uv=np.stack([cols + left, rows + top], axis=1).astype(np.int64),
         labels=label_image[box][rows, cols].astype(np.uint8),
