@@ -498,10 +498,12 @@ def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
 
 def run_detect(args: argparse.Namespace) -> int:
     from contextlib import ExitStack
+    from dataclasses import replace
 
     from fingertips.depth_input import open_depth_source
     from fingertips.detector import FingertipDetector
     from tracker.outputs.stream import open_stream
+    from tracker.prefetch import Prefetch
 
     if args.out == "-":
         if args.stream not in (None, "-"):
@@ -522,6 +524,8 @@ def run_detect(args: argparse.Namespace) -> int:
             stream = stack.enter_context(
                 open_stream(args.stream, topic="glove/fingertips", wait_s=args.stream_wait)
             )
+        if not source.live:  # recordings: the next frames decode while this one is detected
+            source = replace(source, frames=stack.enter_context(Prefetch(iter(source), depth=2)))
         if args.out is None:
             count, seconds = _write_records(
                 detector, source, None, pose_guess=args.pose_guess, stream=stream
