@@ -199,7 +199,12 @@ def test_tracker_finds_rendered_hands_and_reports_no_hand_without_glove(small_da
         clothes = np.full((480, 640, 3), 90, np.uint8)
         clothes[200:400, 100:300], clothes[220:380, 320:420] = colors[0], colors[8]
         shirt = Frame(11, clothes, np.full((480, 640), 0.7, np.float32), KINECT_V1)
-        for frame in (bare, empty_depth, shirt):
+        # A dark room's noise: a third of the pixels glove-colored at random, a wall at
+        # 0.9 m: no hand (such pixels once reached the lookup and raised ValueError).
+        glove_like = colors[rng.integers(0, 10, (480, 640))]
+        speckle = np.where(rng.random((480, 640, 1)) < 0.35, glove_like, 40).astype(np.uint8)
+        noise = Frame(12, speckle, np.full((480, 640), 0.9, np.float32), KINECT_V1)
+        for frame in (bare, empty_depth, shirt, noise):
             result = tracker.track(frame)
             assert not result.hand_found
             assert result.as_record() == {"frame": frame.index, "timestamp_s": None,
