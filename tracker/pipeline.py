@@ -35,13 +35,11 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fingertips.detect import Detection, detection_points, fingertips_output
-from fingertips.detector import FingertipDetector
 from glovedb._closing import Closing
 from glovedb._threads import single_threaded_blas
 from glovedb._validate import as_array
@@ -70,6 +68,10 @@ from tracker.generative.visibility import keypoint_visibility
 from tracker.icp import IcpResult, color_icp
 from tracker.point_cloud import HandRegion, LabeledPointCloud, hand_region, labeled_point_cloud
 from tracker.smoothing import PoseFilter, PoseFilterSettings
+
+if TYPE_CHECKING:  # the fingertip detector loads only when a model is asked for
+    from fingertips.detect import Detection
+    from fingertips.detector import FingertipDetector
 
 STAGES = ("classify", "segment", "fingertips", "lookup", "icp", "fit", "total")
 """Per-frame ``timing_ms`` keys in pipeline order (``fingertips`` only with a fingertip
@@ -259,6 +261,8 @@ class TrackingResult:
                 keypoint_visibility=list(self.keypoint_visibility),
             )
             if self.fingertip_detections is not None:
+                from fingertips.detect import fingertips_output
+
                 record["fingertip_detections"] = fingertips_output(self.fingertip_detections)
         record["timing_ms"] = {k: round(v, 3) for k, v in self.timing_ms.items()}
         return record
@@ -676,6 +680,8 @@ def tip_targets_of(detections: Sequence[Detection]) -> NDArray[np.float64]:
         Camera-frame position of each finger's detection, thumb first, metres; NaN
         rows for fingers without one.
     """
+    from fingertips.detect import detection_points
+
     targets = np.full((len(FINGERS), 3), np.nan)
     named = [d for d in detections if d.finger is not None]
     targets[[FINGERS.index(str(d.finger)) for d in named]] = detection_points(named)
@@ -686,6 +692,8 @@ def _fingertip_detector(model: str | None) -> FingertipDetector | None:
     """The fingertip detector of ``TrackerSettings.fingertip_model`` (None: none)."""
     if model is None:
         return None
+    from fingertips.detector import FingertipDetector
+
     return FingertipDetector(None if model == "default" else model)
 
 
