@@ -137,9 +137,7 @@ def run_track(args: argparse.Namespace) -> int:
           f"(read ahead {figures['read_ahead']}, waiting "
           f"{figures['read_wait_ms_per_frame']:.1f} ms per frame for input)")  # fmt: skip
     print(f"  tracking alone     {figures['tracking_fps']:.1f} frames/s")
-    print(f"  {'stage':10s} {'median':>8s} {'p95':>8s} {'p99':>8s} {'max':>8s}  ms")
-    for stage, t in figures["stages_ms"].items():
-        print(f"  {stage:10s} {t['median']:8.2f} {t['p95']:8.2f} {t['p99']:8.2f} {t['max']:8.2f}")
+    print_stages(figures["stages_ms"], ("median", "p95", "p99", "max"))
     return 0
 
 
@@ -165,8 +163,12 @@ def run_fingertips(args: argparse.Namespace) -> int:
     print(f"  end to end         {figures['end_to_end_fps']:.1f} frames/s, "
           f"{figures['end_to_end_ms_per_frame']} ms per frame after the first "
           f"(read ahead {figures['read_ahead']})")  # fmt: skip
-    print(f"  {'stage':10s} {'median':>8s} {'p95':>8s} {'p99':>8s} {'mean':>8s} {'max':>8s}  ms")
-    for stage, t in figures["stages_ms"].items():
-        print(f"  {stage:10s} {t['median']:8.2f} {t['p95']:8.2f} {t['p99']:8.2f} "
-              f"{t['mean']:8.2f} {t['max']:8.2f}")  # fmt: skip
+    print_stages(figures["stages_ms"], ("median", "p95", "p99", "mean", "max"))
     return 0
+
+
+def print_stages(stages_ms: dict[str, dict[str, float]], columns: tuple[str, ...]) -> None:
+    """A benchmark's per-stage table: one row per stage, one column per statistic, ms."""
+    print(f"  {'stage':10s} " + " ".join(f"{c:>8s}" for c in columns) + "  ms")
+    for stage, t in stages_ms.items():
+        print(f"  {stage:10s} " + " ".join(f"{t[c]:8.2f}" for c in columns))
