@@ -5,7 +5,7 @@ pixels whose depth is missing or inside the working range, grouped into 8-connec
 blobs (after closing one-pixel gaps between patches); the blob with the most solid
 glove (what a 3x3 opening keeps) is the hand, and blobs near it in the image and in
 depth join it (a finger split off by an occluding edge). Of the kept blobs, pixels far
-from the hand's depth are dropped. "Solid" and the depth band matter in a dark room:
+from the hand's depth or from solid glove are dropped. Both matter in a dark room:
 the camera's gain makes scattered background pixels glove-like, dense enough to
 connect into one large blob with the hand; they do not survive the opening, so they
 neither choose the hand nor set its depth, and those on a wall behind it fall outside
@@ -137,8 +137,9 @@ def hand_region(
         )
         if near and abs(_median_depth(depth, blobs == blob) - hand_depth) < join_depth_m:
             keep[blob] = True
-    # Of the kept blobs, the glove pixels at the hand's depth (or without depth), within
-    # their bounding box, so that the row-major order is the frame's,
+    # Of the kept blobs, the glove pixels at the hand's depth (or without depth) and
+    # within 2 px of solid glove (a finger's sliver beside an occluder stays), found
+    # within the blobs' bounding box, whose row-major order is the frame's.
     kept = np.flatnonzero(keep)
     left, top = int(stats[kept, 0].min()), int(stats[kept, 1].min())
     right = int((stats[kept, 0] + stats[kept, 2]).max())
@@ -146,7 +147,6 @@ def hand_region(
     box = (slice(top, bottom), slice(left, right))
     depth_box = depth[box]
     near_hand = (depth_box == 0) | (np.abs(depth_box - hand_depth) < hand_depth_band_m)
-    # and within 2 px of solid glove (a finger's sliver beside an occluder stays).
     beside_solid = cv2.dilate(solid[box].astype(np.uint8), np.ones((5, 5), np.uint8))
     rows, cols = np.nonzero(keep[blobs[box]] & glove[box] & near_hand & beside_solid.astype(bool))
     return HandRegion(
