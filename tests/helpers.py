@@ -12,3 +12,38 @@ SMALL_DATABASE = {
     "views": {"subdivisions": 0, "rolls": 3},
     "images": {"sizes": [8, 16, 32], "render_size": 96},
 }
+
+
+def model_pose(posture="pinch", axis=(0.3, 1.0, 0.2), angle=0.5, at=(0.01, 0.02, 0.55)):
+    """A named posture with the hand's back to the camera, turned by ``angle`` radians
+    about ``axis``, its wrist at ``at`` (camera frame, metres): a generative-fit pose."""
+    import numpy as np
+
+    from glovedb.postures import named_posture
+    from glovedb.rotations import axis_angle_to_matrix
+    from tracker.generative.model import HandPose
+
+    turn = axis_angle_to_matrix(np.array(axis) / np.linalg.norm(axis), angle)
+    return HandPose.of(named_posture(posture), turn @ np.diag([1.0, -1.0, -1.0]), at)
+
+
+def model_observation(samples, pose, *, max_points):
+    """What a camera sees of the model in ``pose``, without OpenGL: its camera-facing
+    samples as the glove points, their pixels as the hand mask, their depth as the
+    observed depth (Kinect v1 intrinsics)."""
+    import numpy as np
+
+    from glovedb.camera import KINECT_V1
+    from tracker.generative.model import PosedHand
+    from tracker.generative.observation import observe
+    from tracker.point_cloud import HandRegion, LabeledPointCloud
+
+    hand = PosedHand(samples, pose)
+    points, labels = hand.points_m[hand.facing], samples.labels[hand.facing]
+    uv = np.rint(KINECT_V1.project(points)).astype(np.int64)
+    depth = np.zeros((KINECT_V1.height, KINECT_V1.width), np.float32)
+    order = np.argsort(-points[:, 2])  # nearest written last
+    depth[uv[order, 1], uv[order, 0]] = points[order, 2]
+    region = HandRegion(uv, labels, points[:, 2].astype(np.float32))
+    cloud = LabeledPointCloud(points.astype(np.float32), labels)
+    return observe(region, cloud, depth, KINECT_V1, max_points=max_points)

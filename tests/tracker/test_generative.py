@@ -10,8 +10,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers import model_observation, model_pose
 
-from glovedb.camera import KINECT_V1
 from glovedb.hand_model import JOINT_NAMES, make_skeleton
 from glovedb.mesh import make_hand_mesh
 from glovedb.pattern import load_pattern, split_by_label
@@ -34,11 +34,7 @@ from tracker.generative.energy.silhouette import silhouette_residuals
 from tracker.generative.energy.temporal import temporal_residuals
 from tracker.generative.fit import FitSettings, fit_frame
 from tracker.generative.model import KEYPOINT_BONES, N_PARAMS, HandPose, PosedHand, hand_samples
-from tracker.generative.observation import observe
 from tracker.generative.solver import levenberg_marquardt
-from tracker.point_cloud import HandRegion, LabeledPointCloud
-
-BACK_TO_CAMERA = np.diag([1.0, -1.0, -1.0])
 
 
 @pytest.fixture(scope="module")
@@ -47,24 +43,12 @@ def samples():
     return hand_samples(mesh, split_by_label(mesh, load_pattern()))
 
 
-def _pose(posture="pinch", axis=(0.3, 1.0, 0.2), angle=0.5, at=(0.01, 0.02, 0.55)):
-    turn = axis_angle_to_matrix(np.array(axis) / np.linalg.norm(axis), angle)
-    return HandPose.of(named_posture(posture), turn @ BACK_TO_CAMERA, at)
+_pose = model_pose
 
 
 def _observation(samples, pose):
-    """What a camera sees of the model in ``pose`` (module docstring)."""
-    hand = PosedHand(samples, pose)
-    facing = np.einsum("ij,ij->i", hand.normals, hand.points_m) < 0
-    points = hand.points_m[facing]
-    labels = samples.labels[facing]
-    uv = np.rint(KINECT_V1.project(points)).astype(np.int64)
-    depth = np.zeros((KINECT_V1.height, KINECT_V1.width), np.float32)
-    order = np.argsort(-points[:, 2])  # nearest written last
-    depth[uv[order, 1], uv[order, 0]] = points[order, 2]
-    region = HandRegion(uv, labels, points[:, 2].astype(np.float32))
-    cloud = LabeledPointCloud(points.astype(np.float32), labels)
-    return observe(region, cloud, depth, KINECT_V1, max_points=600)
+    """What a camera sees of the model in ``pose`` (:func:`helpers.model_observation`)."""
+    return model_observation(samples, pose, max_points=600)
 
 
 def _numeric(function, pose, columns=range(N_PARAMS), eps=1e-6):

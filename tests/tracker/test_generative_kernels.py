@@ -7,25 +7,21 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers import model_observation, model_pose
 
-from glovedb.camera import KINECT_V1
 from glovedb.hand_model import JOINT_NAMES, N_BONES, make_skeleton
 from glovedb.mesh import make_hand_mesh, skin, skinning_matrices
 from glovedb.pattern import load_pattern, split_by_label
 from glovedb.posture_prior import load_posture_prior
 from glovedb.postures import named_posture
-from glovedb.rotations import axis_angle_to_matrix
 from tracker.generative.energy.collision import collision_residuals, segment_closest_points
 from tracker.generative.energy.data import data_residuals, nearest_of_class
 from tracker.generative.energy.residuals import huber_weights, project_rows
 from tracker.generative.energy.silhouette import silhouette_residuals
 from tracker.generative.fit import FitSettings, frame_energy
 from tracker.generative.model import MOVES, HandPose, PosedHand, hand_samples
-from tracker.generative.observation import look_up, observe
+from tracker.generative.observation import look_up
 from tracker.icp import class_coordinate, class_tree
-from tracker.point_cloud import HandRegion, LabeledPointCloud
-
-BACK_TO_CAMERA = np.diag([1.0, -1.0, -1.0])
 
 
 @pytest.fixture(scope="module")
@@ -34,23 +30,12 @@ def samples():
     return hand_samples(mesh, split_by_label(mesh, load_pattern()), spacing=2)
 
 
-def _pose(posture="pinch", axis=(0.3, 1.0, 0.2), angle=0.5, at=(0.01, 0.02, 0.55)):
-    turn = axis_angle_to_matrix(np.array(axis) / np.linalg.norm(axis), angle)
-    return HandPose.of(named_posture(posture), turn @ BACK_TO_CAMERA, at)
+_pose = model_pose
 
 
 def _observation(samples, pose):
-    """What a camera sees of the model in ``pose``: its facing samples as the glove
-    points, their pixels as the hand mask, their depth as the observed depth."""
-    hand = PosedHand(samples, pose)
-    points, labels = hand.points_m[hand.facing], samples.labels[hand.facing]
-    uv = np.rint(KINECT_V1.project(points)).astype(np.int64)
-    depth = np.zeros((KINECT_V1.height, KINECT_V1.width), np.float32)
-    order = np.argsort(-points[:, 2])  # nearest written last
-    depth[uv[order, 1], uv[order, 0]] = points[order, 2]
-    region = HandRegion(uv, labels, points[:, 2].astype(np.float32))
-    cloud = LabeledPointCloud(points.astype(np.float32), labels)
-    return observe(region, cloud, depth, KINECT_V1, max_points=1500)
+    """What a camera sees of the model in ``pose`` (:func:`helpers.model_observation`)."""
+    return model_observation(samples, pose, max_points=1500)
 
 
 def _reference_pairs(observed, observed_labels, model, model_labels, gate_m, depth_scale):
