@@ -52,13 +52,14 @@ from glovedb.hand_model import (
     make_skeleton,
 )
 from glovedb.lookup import DatabaseIndex, default_cascade
-from glovedb.mesh import cached_hand_mesh, pose_mesh, vertex_normals
+from glovedb.mesh import HandMesh, cached_hand_mesh, pose_mesh, vertex_normals
 from glovedb.pattern import load_pattern, split_by_label
 from glovedb.posture_prior import load_posture_prior
 from glovedb.proportions import HandProportions, proportioned_mesh
 from glovedb.rotations import axis_angle_to_matrix
 from glovedb.search import interpolate_pose, parse_cascade
 from glovedb.tiny_images import tiny_images_from_pixels
+from tracker.background import BackgroundLookup, carried_start
 from tracker.classify import ColorTable, nominal_table
 from tracker.frames import Frame
 from tracker.generative.fit import FitSettings, FrameFit, fit_frame
@@ -73,9 +74,12 @@ if TYPE_CHECKING:  # the fingertip detector loads only when a model is asked for
     from fingertips.detect import Detection
     from fingertips.detector import FingertipDetector
 
-STAGES = ("classify", "segment", "fingertips", "lookup", "icp", "fit", "total")
+STAGES = ("classify", "segment", "fingertips", "lookup", "icp", "fit", "background", "total")
 """Per-frame ``timing_ms`` keys in pipeline order (``fingertips`` only with a fingertip
-model, ``lookup`` and ``icp`` only in frames where the database offered a start)."""
+model, ``lookup`` and ``icp`` only in frames where the database offered a start within
+the frame; ``background`` in the frame that collects a lookup run off the frame: its
+lookup, ICP and fit, done in a worker thread and not part of ``total``). ``total`` is
+the frame's latency: preparation (classify, segment) and tracking."""
 
 
 @dataclass(frozen=True)
@@ -112,6 +116,14 @@ class TrackerSettings:
         While tracking, the database lookup offers a second start every this many
         frames (and whenever the fit from the previous frame fails the quality test);
         the fit with the lower energy wins. 1 looks up every frame.
+    lookup_delay_frames : int
+        The periodic lookups (``reinit_every``) of a tracked hand run off the frame,
+        in a worker thread, and their fit is used this many frames later
+        (:mod:`tracker.background`): when it has the lower energy, that frame starts
+        from its correction. 0 runs them within the frame, where their fit competes
+        on that frame's energy (slower frames; on the synthetic sequences 0-0.06 deg
+        less posture error). The lookups that a failed or suspect fit asks for
+        (``relook_outside``) always run within the frame.
     relook_outside : float
         The lookup also offers a second start when the warm fit leaves this share
         more of its model surface outside the observed hand than usual (the running
@@ -166,6 +178,7 @@ class TrackerSettings:
     mesh_spacing_m: float = 0.003
     fit: FitSettings = field(default_factory=FitSettings)
     reinit_every: int = 10
+    lookup_delay_frames: int = 2
     relook_outside: float = 0.03
     min_matched: float = 0.6
     max_outside: float = 0.3
@@ -183,6 +196,8 @@ class TrackerSettings:
             raise ValueError(f"frame_rate_hz: expected > 0, got {self.frame_rate_hz}")
         if self.reinit_every < 1:
             raise ValueError(f"reinit_every: expected >= 1, got {self.reinit_every}")
+        if self.lookup_delay_frames < 0:
+            raise ValueError(f"lookup_delay_frames: expected >= 0, got {self.lookup_delay_frames}")
         if self.calibration_frames < 0:
             raise ValueError(f"calibration_frames: expected >= 0, got {self.calibration_frames}")
         for name in ("min_matched", "max_outside", "min_fit_confidence", "relook_outside"):
@@ -268,6 +283,31 @@ class TrackingResult:
         return record
 
 
+@dataclass(frozen=True)
+class PreparedFrame:
+    """A frame with the work that needs no tracking state done
+    (:meth:`Tracker.prepare`).
+
+    Attributes
+    ----------
+    frame : Frame
+    region : HandRegion
+        The hand's glove pixels.
+    cloud : LabeledPointCloud
+        Their points.
+    observation : Observation or None
+        The fit's view of the frame; None when it shows too little glove for a hand.
+    timing_ms : dict of str to float
+        ``classify`` and ``segment`` milliseconds.
+    """
+
+    frame: Frame
+    region: HandRegion
+    cloud: LabeledPointCloud
+    observation: Observation | None
+    timing_ms: dict[str, float]
+
+
 class Tracker(Closing):
     """Tracks the glove hand frame after frame with one posture database.
 
@@ -331,6 +371,12 @@ class Tracker(Closing):
         self._previous_posture: NDArray[np.float64] | None = None
         self._previous: PosedHand | None = None
         self._since_lookup = 0
+        self._frame_index = 0
+        self._background: BackgroundLookup[FrameFit, tuple[FrameFit | None, float]] | None = (
+            BackgroundLookup(self.settings.lookup_delay_frames)
+            if self.settings.lookup_delay_frames > 0
+            else None
+        )
         # Running mean of the accepted fits' outside share (kept by reset: it belongs
         # to the camera's registration more than to the sequence).
         self._outside_level = 0.0
@@ -362,10 +408,36 @@ class Tracker(Closing):
         self.index.search({size: stack[0] for size, stack in stacks.items()}, self._search_cascade)
         vertex_normals(self.model_mesh.rest_vertices_m, self.model_mesh.faces)
 
-    def track(self, frame: Frame) -> TrackingResult:
-        """Estimate the hand in one frame (see the module docstring)."""
+    def prepare(self, frame: Frame) -> PreparedFrame:
+        """Classify and segment ``frame`` (steps 1-2 of the module docstring).
+
+        Needs no earlier frame, so a reader thread can prepare the next frames while
+        one is tracked (:func:`tracker.run.track_source`).
+        """
         timing: dict[str, float] = {}
+        clock = time.perf_counter()
+        labels = self.color_table.classify(frame.color)
+        now = time.perf_counter()
+        timing["classify"] = (now - clock) * 1000.0
+        region = hand_region(labels, frame.depth_m, z_range_m=self.settings.z_range_m)
+        cloud = labeled_point_cloud(region, frame.intrinsics)
+        observation = None
+        if len(region) >= self.settings.min_glove_pixels and len(cloud) >= 30:
+            observation = observe(
+                region, cloud, frame.depth_m, frame.intrinsics,
+                max_points=self.settings.fit.max_points,
+            )  # fmt: skip
+        timing["segment"] = (time.perf_counter() - now) * 1000.0
+        return PreparedFrame(frame, region, cloud, observation, timing)
+
+    def track(self, frame: Frame | PreparedFrame) -> TrackingResult:
+        """Estimate the hand in one frame (see the module docstring); ``frame`` may
+        come prepared (:meth:`prepare`)."""
+        prepared = frame if isinstance(frame, PreparedFrame) else self.prepare(frame)
+        frame = prepared.frame
+        timing = dict(prepared.timing_ms)
         started = clock = time.perf_counter()
+        self._frame_index += 1
 
         def lap(stage: str) -> None:
             nonlocal clock
@@ -373,45 +445,60 @@ class Tracker(Closing):
             timing[stage] = timing.get(stage, 0.0) + (now - clock) * 1000.0
             clock = now
 
-        labels = self.color_table.classify(frame.color)
-        lap("classify")
-        region = hand_region(labels, frame.depth_m, z_range_m=self.settings.z_range_m)
-        cloud = labeled_point_cloud(region, frame.intrinsics)
-        if len(region) < self.settings.min_glove_pixels or len(cloud) < 30:
-            lap("segment")
-            return self._not_found(frame, timing, started)
-        observation = observe(
-            region, cloud, frame.depth_m, frame.intrinsics, max_points=self.settings.fit.max_points
-        )
-        lap("segment")
-
+        observation = prepared.observation
+        if observation is None:
+            return self._not_found(prepared, timing, started)
         warm = None if self._previous is None else self._previous.pose
+        start = warm
+        if warm is not None and self._background is not None:
+            collected = self._background.collect(self._frame_index)
+            if collected is not None:
+                warm_fit, (background_fit, background_ms) = collected
+                timing["background"] = background_ms
+                lap("wait")
+                if (
+                    background_fit is not None
+                    and self._trusted(background_fit)
+                    and background_fit.energy < warm_fit.energy
+                ):
+                    start = carried_start(background_fit.pose, warm_fit.pose, warm)
         detections, tip_targets = None, None
         fits: list[FrameFit] = []
-        if warm is not None:
+        if warm is not None and start is not None:
             if self.fingertips is not None:
                 detections = self._named_detections(frame, warm)
                 tip_targets = tip_targets_of(detections)
                 lap("fingertips")
-            fits.append(self._fit(observation, warm, tip_targets))
+            fits.append(self._fit(observation, start, tip_targets))
             lap("fit")
         self._since_lookup += 1
-        lookup_due = self._since_lookup >= self.settings.reinit_every or (
-            bool(fits) and fits[0].outside > self._outside_level + self.settings.relook_outside
+        periodic = self._since_lookup >= self.settings.reinit_every
+        suspect = bool(fits) and (
+            not self._trusted(fits[0])
+            or fits[0].outside > self._outside_level + self.settings.relook_outside
         )
-        if not fits or not self._trusted(fits[0]) or lookup_due:
+        if not fits or suspect or periodic:
             self._since_lookup = 0
-            looked_up = self._lookup_start(frame, region, cloud, lap)
-            if looked_up is not None:
-                if self.fingertips is not None and detections is None:
-                    detections = self._named_detections(frame, looked_up)
-                    tip_targets = tip_targets_of(detections)
-                    lap("fingertips")
-                fits.append(self._fit(observation, looked_up, tip_targets))
-                lap("fit")
+            if not suspect and fits and self._background is not None:
+                if not self._background.busy:
+                    job = self._background_job(prepared, tip_targets)
+                    self._background.submit(self._frame_index, fits[0], job)
+            else:
+                if self._background is not None:
+                    self._background.discard()
+                looked_up = self._lookup_start(
+                    prepared, lap, previous_posture=self._previous_posture, mesh=self.mesh
+                )
+                if looked_up is not None:
+                    if self.fingertips is not None and detections is None:
+                        detections = self._named_detections(frame, looked_up)
+                        tip_targets = tip_targets_of(detections)
+                        lap("fingertips")
+                    fits.append(self._fit(observation, looked_up, tip_targets))
+                    lap("fit")
         trusted = [fit for fit in fits if self._trusted(fit)]
         if not trusted:
-            return self._not_found(frame, timing, started)
+            return self._not_found(prepared, timing, started)
         best = min(trusted, key=lambda fit: fit.energy)
         if self.calibrating and best.proportion_information is not None:
             self._set_proportions(best.proportions)
@@ -437,7 +524,7 @@ class Tracker(Closing):
             margin_m=self.settings.fit.depth_margin_m,
         )  # fmt: skip
         lap("fit")
-        timing["total"] = (time.perf_counter() - started) * 1000.0
+        timing["total"] = _latency_ms(prepared, started)
         return TrackingResult(
             **result, timestamp_s=frame.timestamp_s, timing_ms=timing,
             fingertip_detections=detections,
@@ -447,6 +534,8 @@ class Tracker(Closing):
         """Forget the past frames (start of a new sequence); keep the proportions."""
         if self._smoother is not None:
             self._smoother.reset()
+        if self._background is not None:
+            self._background.discard()
         self._last_time_s = None
         self._previous_posture = None
         self._previous = None
@@ -483,15 +572,49 @@ class Tracker(Closing):
             proportion_information=self._proportion_information,
         )  # fmt: skip
 
+    def _background_job(
+        self, prepared: PreparedFrame, tip_targets: NDArray[np.float64] | None
+    ) -> Callable[[], tuple[FrameFit | None, float]]:
+        """The lookup, ICP and fit of ``prepared`` as a job for the worker thread: it
+        reads what it needs of the tracker's state now (the state moves on while it
+        runs) and returns the fit (None when the lookup found no start) and its
+        milliseconds."""
+        assert prepared.observation is not None
+        observation = prepared.observation
+        previous_posture, mesh, samples = self._previous_posture, self.mesh, self.samples
+        previous = None if self._previous is None else self._previous.keypoints_m
+
+        def job() -> tuple[FrameFit | None, float]:
+            started = time.perf_counter()
+            start = self._lookup_start(
+                prepared, lambda stage: None, previous_posture=previous_posture, mesh=mesh
+            )
+            fit = None
+            if start is not None:
+                fit = fit_frame(
+                    samples, observation, start, settings=self.settings.fit, prior=self.prior,
+                    previous_keypoints_m=previous, tip_targets_m=tip_targets,
+                )  # fmt: skip
+            return fit, (time.perf_counter() - started) * 1000.0
+
+        return job
+
     def _lookup_start(
         self,
-        frame: Frame,
-        region: HandRegion,
-        cloud: LabeledPointCloud,
+        prepared: PreparedFrame,
         lap: Callable[[str], None],
+        *,
+        previous_posture: NDArray[np.float64] | None,
+        mesh: HandMesh,
     ) -> HandPose | None:
         """The database's posture and rotation, aligned by color ICP; None when the
-        lookup or the alignment finds nothing glove-like (:func:`fit_confidence`)."""
+        lookup or the alignment finds nothing glove-like (:func:`fit_confidence`).
+
+        Reads no tracker state that changes between frames (it may run in the
+        background thread): the previous frame's posture (temporal re-ranking) and
+        the hand mesh (ICP) come as arguments.
+        """
+        frame, region, cloud = prepared.frame, prepared.region, prepared.cloud
         stacks = tiny_images_from_pixels(
             region.pixels_uv.astype(np.float64), region.labels, self._sizes
         )
@@ -506,7 +629,7 @@ class Tracker(Closing):
         scores = temporal_scores(
             search.errors,
             candidate_postures,
-            self._previous_posture,
+            previous_posture,
             self.settings.temporal_prior_px,
         )
         order = np.argsort(scores, kind="stable")[: self._blend]
@@ -521,8 +644,8 @@ class Tracker(Closing):
         posture = pose.posture_rad
         centre_px = region.pixels_uv.mean(axis=0)
         rotation = _ray_rotation(frame.intrinsics, centre_px) @ pose.rotation
-        surface = pose_mesh(self.mesh, posture)
-        normals = vertex_normals(surface, self.mesh.faces)
+        surface = pose_mesh(mesh, posture)
+        normals = vertex_normals(surface, mesh.faces)
         model, model_normals = surface[self.split.source_vertex], normals[self.split.source_vertex]
         translation = self._initial_translation(cloud.points_m, model, model_normals, rotation)
         points = cloud.subsample(self.settings.icp_stride)
@@ -608,16 +731,27 @@ class Tracker(Closing):
             "confidence": confidence,
         }
 
-    def _not_found(self, frame: Frame, timing: dict[str, float], started: float) -> TrackingResult:
+    def _not_found(
+        self, prepared: PreparedFrame, timing: dict[str, float], started: float
+    ) -> TrackingResult:
         self.reset()
-        timing["total"] = (time.perf_counter() - started) * 1000.0
+        timing["total"] = _latency_ms(prepared, started)
+        frame = prepared.frame
         return TrackingResult(
             frame=frame.index, hand_found=False, timestamp_s=frame.timestamp_s, timing_ms=timing
         )
 
     def close(self) -> None:
+        if self._background is not None:
+            self._background.close()
         self.index.close()
         self._blas_limit.restore_original_limits()
+
+
+def _latency_ms(prepared: PreparedFrame, started: float) -> float:
+    """Milliseconds of a frame's preparation and of its tracking since ``started``."""
+    preparation = prepared.timing_ms.get("classify", 0.0) + prepared.timing_ms.get("segment", 0.0)
+    return preparation + (time.perf_counter() - started) * 1000.0
 
 
 def fit_quality(matched: float, outside: float, rms_m: float) -> float:

@@ -38,7 +38,7 @@ from tracker.overlay import (
     frames_folder,
     timing_summary,
 )
-from tracker.pipeline import Tracker
+from tracker.pipeline import PreparedFrame, Tracker
 from tracker.prefetch import Prefetch
 from tracker.sources import LIVE_CAMERAS, Source
 
@@ -135,7 +135,7 @@ def track_source(
     bvh: bool = True,
     sinks: Sequence[ResultSink] = (),
     read_ahead: int = 2,
-    progress: Callable[[Iterator[Frame], int | None], Iterator[Frame]] | None = None,
+    progress: Callable[[Iterator[Any], int | None], Iterator[Any]] | None = None,
 ) -> RunSummary:
     """Track every frame of ``source``, write the outputs into ``out`` and hand each
     frame's record to ``sinks``.
@@ -154,9 +154,10 @@ def track_source(
         Each gets every frame and its record as soon as it is tracked; the caller
         opens and closes them.
     read_ahead : int
-        Frames of a folder or recording read and decoded ahead in a thread while one
-        is tracked (0: read in turn). A camera is always read in turn, so that the
-        tracker gets its newest frame, not a queued one.
+        Frames of a folder or recording read, decoded and prepared (classified and
+        segmented, :meth:`Tracker.prepare`) ahead in a thread while one is tracked
+        (0: in turn). A camera is always read in turn, so that the tracker gets its
+        newest frame, not a queued one.
     progress : callable, optional
         Wraps the frame iterator (e.g. a tqdm bar); gets the frame count if known.
 
@@ -167,10 +168,10 @@ def track_source(
     folder = None if out is None else Path(out)
     started = time.perf_counter()
     fps = source.fps or 30.0
-    frames: Iterator[Frame] = iter(source)
+    frames: Iterator[Frame | PreparedFrame] = iter(source)
     reader = None
     if read_ahead > 0 and source.kind not in LIVE_CAMERAS:
-        frames = reader = Prefetch(frames, depth=read_ahead)
+        frames = reader = Prefetch(map(tracker.prepare, source), depth=read_ahead)
     if progress is not None:
         frames = iter(progress(frames, source.n_frames))
     records: list[dict[str, Any]] = []
@@ -195,13 +196,14 @@ def track_source(
         try:
             while True:
                 clock = time.perf_counter()
-                frame = next(frames, None)
+                item = next(frames, None)
                 wait = time.perf_counter() - clock
                 waited += wait
-                if frame is None:
+                if item is None:
                     break
+                frame = item.frame if isinstance(item, PreparedFrame) else item
                 clock = time.perf_counter()
-                result = tracker.track(frame)
+                result = tracker.track(item)
                 tracking += time.perf_counter() - clock
                 record = result.as_record()
                 # The time this frame's input kept the loop waiting (not in "total").

@@ -318,12 +318,13 @@ def test_a_warm_fit_that_leaves_the_hand_asks_the_lookup_again(open_pinch_power_
     ]
     lookups, errors = {}, {}
     for relook in (0.03, 1.0):  # the default, and off
-        settings = TrackerSettings(smoothing=None, relook_outside=relook)
+        # Within the frame (tests/tracker/test_background.py: off the frame).
+        settings = TrackerSettings(smoothing=None, relook_outside=relook, lookup_delay_frames=0)
         with Tracker(open_pinch_power_database, settings=settings) as tracker:
             calls = []
             start = tracker._lookup_start
-            tracker._lookup_start = lambda *a, start=start, calls=calls: (  # type: ignore
-                calls.append(1) or start(*a)
+            tracker._lookup_start = lambda *a, start=start, calls=calls, **k: (  # type: ignore
+                calls.append(1) or start(*a, **k)
             )
             results = [tracker.track(frame) for frame in frames]
         lookups[relook] = len(calls)
