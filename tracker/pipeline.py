@@ -143,6 +143,13 @@ class TrackerSettings:
         synthetic sequences: tracked frames score 0.49 or more (Tr1, Tr3, other hand
         sizes, a ball in front, 3 px misregistration); a hand fitted into a wrong
         local minimum while a ball hid 45 % of it, 0.37.
+    min_start_confidence : float
+        What a fit must score when there is no previous frame (the first frame,
+        after a loss): a start has no history behind it, and while an object hides
+        much of the hand the lookup's start can reach a wrong minimum that passes
+        ``min_fit_confidence`` (0.45, 13 degrees off, as a 4 cm ball left the
+        fingers). Chosen on the synthetic sequences: their starts score 0.62 or
+        more.
     hand_proportions : HandProportions or None
         The user's hand proportions (:mod:`glovedb.proportions`); None (the default)
         estimates them online over the first ``calibration_frames`` tracked frames
@@ -184,6 +191,7 @@ class TrackerSettings:
     max_outside: float = 0.3
     max_rms_m: float = 0.008
     min_fit_confidence: float = 0.4
+    min_start_confidence: float = 0.55
     hand_proportions: HandProportions | None = None
     calibration_frames: int = 30
     lookup_candidates: int = 10
@@ -200,7 +208,8 @@ class TrackerSettings:
             raise ValueError(f"lookup_delay_frames: expected >= 0, got {self.lookup_delay_frames}")
         if self.calibration_frames < 0:
             raise ValueError(f"calibration_frames: expected >= 0, got {self.calibration_frames}")
-        for name in ("min_matched", "max_outside", "min_fit_confidence", "relook_outside"):
+        names = ("min_matched", "max_outside", "min_fit_confidence", "min_start_confidence")
+        for name in (*names, "relook_outside"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name}: expected 0 to 1, got {getattr(self, name)}")
 
@@ -496,7 +505,7 @@ class Tracker(Closing):
                         lap("fingertips")
                     fits.append(self._fit(observation, looked_up, tip_targets))
                     lap("fit")
-        trusted = [fit for fit in fits if self._trusted(fit)]
+        trusted = [fit for fit in fits if self._trusted(fit, starting=warm is None)]
         if not trusted:
             return self._not_found(prepared, timing, started)
         best = min(trusted, key=lambda fit: fit.energy)
@@ -551,15 +560,9 @@ class Tracker(Closing):
             return period
         return min(now - last, 10 * period)
 
-    def _trusted(self, fit: FrameFit) -> bool:
+    def _trusted(self, fit: FrameFit, *, starting: bool = False) -> bool:
         """Whether a fit explains the observed hand well enough to report it."""
-        s = self.settings
-        return (
-            fit.matched >= s.min_matched
-            and fit.outside <= s.max_outside
-            and fit.rms_m <= s.max_rms_m
-            and fit_quality(fit.matched, fit.outside, fit.rms_m) >= s.min_fit_confidence
-        )
+        return fit_trusted(fit.matched, fit.outside, fit.rms_m, self.settings, starting=starting)
 
     def _fit(
         self, observation: Observation, start: HandPose, tip_targets: NDArray[np.float64] | None
@@ -752,6 +755,22 @@ def _latency_ms(prepared: PreparedFrame, started: float) -> float:
     """Milliseconds of a frame's preparation and of its tracking since ``started``."""
     preparation = prepared.timing_ms.get("classify", 0.0) + prepared.timing_ms.get("segment", 0.0)
     return preparation + (time.perf_counter() - started) * 1000.0
+
+
+def fit_trusted(
+    matched: float, outside: float, rms_m: float, settings: TrackerSettings, *, starting: bool
+) -> bool:
+    """The quality test of a fit (``min_matched``, ``max_outside``, ``max_rms_m`` and
+    the confidence of :func:`fit_quality`: ``min_start_confidence`` when ``starting``,
+    without a previous frame, else ``min_fit_confidence``)."""
+    s = settings
+    least = s.min_start_confidence if starting else s.min_fit_confidence
+    return (
+        matched >= s.min_matched
+        and outside <= s.max_outside
+        and rms_m <= s.max_rms_m
+        and fit_quality(matched, outside, rms_m) >= least
+    )
 
 
 def fit_quality(matched: float, outside: float, rms_m: float) -> float:

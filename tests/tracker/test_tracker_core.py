@@ -216,8 +216,9 @@ def test_tracker_finds_rendered_hands_and_reports_no_hand_without_glove(small_da
     with Tracker(small_database, settings=ungated) as tracker:
         assert not tracker.track(shirt).hand_found
     trusting = replace(
-        ungated, min_matched=0.0, max_outside=1.0, max_rms_m=1.0, min_fit_confidence=0.0
-    )
+        ungated, min_matched=0.0, max_outside=1.0, max_rms_m=1.0, min_fit_confidence=0.0,
+        min_start_confidence=0.0,
+    )  # fmt: skip
     with Tracker(small_database, settings=trusting) as tracker:
         found = tracker.track(shirt)
         assert found.hand_found and found.confidence < 0.3
