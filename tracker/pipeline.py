@@ -18,7 +18,8 @@ Per frame:
    the optical axis, so a hand seen off-axis is turned by ``R_ray``, the smallest
    rotation taking +z to the ray through the hand's pixels; the skinned model is
    placed there and aligned by color-sensitive ICP (:mod:`tracker.icp`); the fit
-   from this start competes with the first: the lower energy wins;
+   from this start competes with the first: the lower energy wins (the periodic
+   lookup of a tracked hand runs off the frame, :mod:`tracker.background`);
 5. **check** the winner: a fit that pairs too few observed points with the model,
    shows model surface where the camera sees none, or lies too far from the points
    (``min_matched``, ``max_outside``, ``max_rms_m``) is "no hand", and the next frame
@@ -74,12 +75,15 @@ if TYPE_CHECKING:  # the fingertip detector loads only when a model is asked for
     from fingertips.detect import Detection
     from fingertips.detector import FingertipDetector
 
-STAGES = ("classify", "segment", "fingertips", "lookup", "icp", "fit", "background", "total")
+STAGES = (
+    "classify", "segment", "wait", "fingertips", "lookup", "icp", "fit", "background", "total",
+)  # fmt: skip
 """Per-frame ``timing_ms`` keys in pipeline order (``fingertips`` only with a fingertip
 model, ``lookup`` and ``icp`` only in frames where the database offered a start within
-the frame; ``background`` in the frame that collects a lookup run off the frame: its
-lookup, ICP and fit, done in a worker thread and not part of ``total``). ``total`` is
-the frame's latency: preparation (classify, segment) and tracking."""
+the frame; ``background`` and ``wait`` in the frame that collects a lookup run off the
+frame: its lookup, ICP and fit, done in a worker thread and not part of ``total``, and
+the time this frame waited for it). ``total`` is the frame's latency: preparation
+(classify, segment) and tracking."""
 
 
 @dataclass(frozen=True)
