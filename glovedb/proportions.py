@@ -169,12 +169,19 @@ def proportioned_mesh(
     model_rest, personal_rest = (
         forward_kinematics(rest[:1], s).bone_transforms[0] for s in (mesh.skeleton, skeleton)
     )
-    stretch = np.tile(np.eye(4), (N_BONES, 1, 1))
-    stretch[:, [0, 1, 2], [0, 1, 2]] = bone_scales(proportions) * [1.0, 1.0, thickness]
+    stretch = bone_stretch(proportions, thickness=thickness)
     moves = (personal_rest @ stretch @ np.linalg.inv(model_rest))[:, :3, :]  # (16, 3, 4)
     blended = (mesh.weights.astype(np.float64) @ moves.reshape(N_BONES, 12)).reshape(-1, 3, 4)
     vertices = np.einsum("vij,vj->vi", blended[..., :3], mesh.rest_vertices_m) + blended[..., 3]
     return HandMesh(skeleton, vertices, mesh.faces, mesh.weights)
+
+
+def bone_stretch(proportions: HandProportions, *, thickness: float = 1.0) -> NDArray[np.float64]:
+    """``(16, 4, 4)`` scaling of every bone's local axes (:func:`bone_scales`, and
+    ``thickness`` along z) as homogeneous matrices."""
+    stretch = np.tile(np.eye(4), (N_BONES, 1, 1))
+    stretch[:, [0, 1, 2], [0, 1, 2]] = bone_scales(proportions) * [1.0, 1.0, thickness]
+    return stretch
 
 
 def save_proportions(

@@ -13,11 +13,11 @@ import pytest
 from helpers import model_observation, model_pose
 
 from glovedb.hand_model import JOINT_NAMES, make_skeleton
-from glovedb.mesh import make_hand_mesh
+from glovedb.mesh import HandMesh, make_hand_mesh, skin, skinning_matrices
 from glovedb.pattern import load_pattern, split_by_label
 from glovedb.posture_prior import fit_posture_prior, load_posture_prior
 from glovedb.postures import named_posture
-from glovedb.proportions import HandProportions
+from glovedb.proportions import HandProportions, proportioned_mesh
 from glovedb.rotations import axis_angle_to_matrix, geodesic_angle
 from tracker.generative.energy.collision import collision_residuals
 from tracker.generative.energy.data import data_residuals
@@ -33,7 +33,14 @@ from tracker.generative.energy.residuals import Residuals
 from tracker.generative.energy.silhouette import silhouette_residuals
 from tracker.generative.energy.temporal import temporal_residuals
 from tracker.generative.fit import FitSettings, fit_frame
-from tracker.generative.model import KEYPOINT_BONES, N_PARAMS, HandPose, PosedHand, hand_samples
+from tracker.generative.model import (
+    _PROPORTION_STEP,
+    KEYPOINT_BONES,
+    N_PARAMS,
+    HandPose,
+    PosedHand,
+    hand_samples,
+)
 from tracker.generative.solver import levenberg_marquardt
 
 
@@ -91,6 +98,19 @@ def test_proportion_jacobian_matches_central_differences(samples):
         ]
         numeric.append((moved[0] - moved[1]) / 2e-6)
     np.testing.assert_allclose(hand.proportion_jacobian(ids), np.stack(numeric, 2), atol=2e-3)
+    # The batched forward differences are those of re-resting and skinning the samples
+    # once per stepped proportion.
+    model = stretched.model
+    chosen = HandMesh(model.skeleton, model.rest_vertices_m[ids], model.faces, model.weights[ids])
+    columns = []
+    for k in range(7):
+        stepped = base.copy()
+        stepped[k] += _PROPORTION_STEP
+        moved = proportioned_mesh(chosen, HandProportions.from_vector(stepped))
+        posed = skin(moved, skinning_matrices(pose.posture_rad, moved.skeleton))[0]
+        columns.append(posed @ pose.rotation.T + pose.translation_m - hand.points_m[ids])
+    reference = np.stack(columns, 2) / _PROPORTION_STEP
+    np.testing.assert_allclose(hand.proportion_jacobian(ids), reference, atol=1e-9)
 
 
 def _check_term(make, pose, *, atol=1e-6, rtol=1e-4):

@@ -47,9 +47,15 @@ from glovedb.hand_model import (
     Skeleton,
     forward_kinematics,
 )
-from glovedb.mesh import HandMesh, skin, skinning_matrices, vertex_normals
+from glovedb.mesh import HandMesh, vertex_normals
 from glovedb.pattern import LabeledVertices
-from glovedb.proportions import N_PROPORTIONS, HandProportions, proportioned_mesh
+from glovedb.proportions import (
+    N_PROPORTIONS,
+    HandProportions,
+    bone_stretch,
+    proportioned_mesh,
+    proportioned_skeleton,
+)
 from glovedb.rotations import axis_angle_to_matrix
 from tracker.generative import _kernels
 
@@ -201,6 +207,12 @@ class HandSamples:
     def _weights(self) -> NDArray[np.float64]:
         """``(S, 16)`` the skinning weights as float64, C order."""
         return np.ascontiguousarray(self.mesh.weights, dtype=np.float64)
+
+    @cached_property
+    def model_rest_inverse(self) -> NDArray[np.float64]:
+        """``(16, 4, 4)`` inverse bone transforms at rest of the model's skeleton."""
+        rest = forward_kinematics(np.zeros(N_JOINTS), self.model.skeleton).bone_transforms[0]
+        return np.asarray(np.linalg.inv(rest), dtype=np.float64)
 
     @cached_property
     def _rest_inverse(self) -> NDArray[np.float64]:
@@ -388,24 +400,41 @@ class PosedHand:
 
     def proportion_jacobian(self, sample_ids: ArrayLike) -> NDArray[np.float64]:
         """``(P, 3, 7)`` forward-difference derivatives of samples (camera frame) by
-        the hand proportions (:meth:`glovedb.proportions.HandProportions.as_vector`)."""
+        the hand proportions (:meth:`glovedb.proportions.HandProportions.as_vector`).
+
+        The samples of the hand with the proportions and with each one stepped are
+        re-rested and skinned as :func:`~glovedb.proportions.proportioned_mesh` and
+        :func:`~glovedb.mesh.skin` would, all eight at once: per bone only the 3 x 4
+        maps differ, so each vertex blends them in one product.
+        """
         ids = np.asarray(sample_ids, dtype=np.int64)
         if self._proportion_jacobian is not None:
             return self._proportion_jacobian[ids]
         model = self.samples.model
-        chosen = HandMesh(
-            model.skeleton, model.rest_vertices_m[ids], model.faces, model.weights[ids]
-        )
-        base = self.samples.proportions.as_vector()
-        columns = []
-        for k in range(N_PROPORTIONS):
-            stepped = base.copy()
-            stepped[k] += _PROPORTION_STEP
-            moved = proportioned_mesh(chosen, HandProportions.from_vector(stepped))
-            hand = skin(moved, skinning_matrices(self.pose.posture_rad, moved.skeleton))[0]
-            points = hand @ self.pose.rotation.T + self.pose.translation_m
-            columns.append(points - self.points_m[ids])
-        return np.stack(columns, axis=2) / _PROPORTION_STEP
+        vectors = np.tile(self.samples.proportions.as_vector(), (N_PROPORTIONS + 1, 1))
+        vectors[1:] += _PROPORTION_STEP * np.eye(N_PROPORTIONS)
+        postures = np.stack([self.pose.posture_rad, np.zeros(N_JOINTS)])
+        model_rest = self.samples.model_rest_inverse
+        moves, posed = [], []
+        for vector in vectors:
+            proportions = HandProportions.from_vector(vector)
+            personal = proportioned_skeleton(model.skeleton, proportions)
+            # One forward kinematics for the posture and the rest of each skeleton.
+            bones = forward_kinematics(postures, personal).bone_transforms
+            moves.append((bones[1] @ bone_stretch(proportions) @ model_rest)[:, :3])
+            posed.append((bones[0] @ np.linalg.inv(bones[1]))[:, :3])
+        weights = model.weights[ids].astype(np.float64)
+        rest_maps, pose_maps = (
+            (weights @ np.transpose(m, (1, 0, 2, 3)).reshape(N_BONES, -1)).reshape(
+                len(ids), len(vectors), 3, 4
+            )
+            for m in (np.stack(moves), np.stack(posed))
+        )  # (P, 8, 3, 4) each: the blended maps of every sample and proportion vector
+        rested = np.einsum("pkij,pj->pki", rest_maps[..., :3], model.rest_vertices_m[ids])
+        rested += rest_maps[..., 3]
+        hand = np.einsum("pkij,pkj->pki", pose_maps[..., :3], rested) + pose_maps[..., 3]
+        change = (hand[:, 1:] - hand[:, :1]) @ self.pose.rotation.T / _PROPORTION_STEP
+        return np.ascontiguousarray(change.transpose(0, 2, 1))
 
     def _jacobian(
         self, points: NDArray[np.float64], moved_hand: NDArray[np.float64], share: NDArray
