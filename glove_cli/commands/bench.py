@@ -138,6 +138,10 @@ def run_track(args: argparse.Namespace) -> int:
           f"{figures['read_wait_ms_per_frame']:.1f} ms per frame for input)")  # fmt: skip
     print(f"  tracking alone     {figures['tracking_fps']:.1f} frames/s")
     print_stages(figures["stages_ms"], ("median", "p95", "p99", "max"))
+    if "background" in figures["stages_ms"]:
+        print("  total: a frame's latency; background: the periodic lookups, run in a worker\n"
+              "  thread beside the next frames (not in total); wait: what the frame that\n"
+              "  collects one waited for it")  # fmt: skip
     return 0
 
 
