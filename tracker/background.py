@@ -2,12 +2,11 @@
 tracked.
 
 While the hand is tracked, the tracker still looks it up in the database every
-``reinit_every`` frames (and when the fit leaves more model outside the hand than
-usual), fits from the looked-up start and keeps the lower energy: on the pinch and
-grasp sequences this second start wins about half the time and takes 0.1-0.5 degrees
-off the mean posture error. Within the frame it costs the lookup, the ICP and a
-second fit, about 26 ms on a laptop-class core: those frames set the 99th
-percentile of the latency.
+``reinit_every`` frames, fits from the looked-up start and keeps the lower energy: on
+the rendered Tr1-Tr5 sequences this second start wins about half the time and takes
+0-0.5 degrees off the mean posture error (0.5 on Tr3). Within the frame it costs the
+lookup, the ICP and a second fit, about 26 ms on a laptop-class core: those frames
+set the 99th percentile of the latency.
 
 :class:`BackgroundLookup` runs that work in a worker thread on the frame where it is
 due while the tracker goes on with the next frames from their warm starts, and hands
@@ -18,7 +17,9 @@ tracker's next start carries the difference (:func:`carried_start`): the lookup'
 correction applied to the pose the warm fits have reached since.
 
 A lookup that the warm fit's failure asks for (no hand, a fit that fails the quality
-test) is not deferred: that frame has no other answer.
+test) is not deferred: that frame has no other answer; nor is one that a suspect fit
+asks for (more model outside the hand than usual, ``relook_outside``), where a late
+correction cost a ball in front of the hand and a dim cluttered room accuracy.
 """
 
 from __future__ import annotations

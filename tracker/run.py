@@ -168,10 +168,12 @@ def track_source(
     folder = None if out is None else Path(out)
     started = time.perf_counter()
     fps = source.fps or 30.0
-    frames: Iterator[Frame | PreparedFrame] = iter(source)
+    frames: Iterator[Frame | PreparedFrame]
+    source_frames: Iterator[Frame] = iter(source)
+    frames = source_frames
     reader = None
     if read_ahead > 0 and source.kind not in LIVE_CAMERAS:
-        frames = reader = Prefetch(map(tracker.prepare, source), depth=read_ahead)
+        frames = reader = Prefetch(map(tracker.prepare, source_frames), depth=read_ahead)
     if progress is not None:
         frames = iter(progress(frames, source.n_frames))
     records: list[dict[str, Any]] = []
