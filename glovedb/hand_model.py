@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from glovedb import _kinematics_kernels
 from glovedb._validate import as_array
 from glovedb.rotations import rotation_y, rotation_z
 
@@ -201,8 +202,22 @@ def joint_rotations(posture_rad: NDArray[np.float64]) -> NDArray[np.float64]:
         Identity for the palm.
     """
     # Every joint is Rz(z_angle) @ Rx(x_angle) about the parent's axes; joints without
-    # a z part have z_angle 0. Built from cos and sin directly: this runs for every
-    # skinning of the mesh.
+    # a z part have z_angle 0. Built from cos and sin directly.
+    z_angle, x_angle = _bone_angles(posture_rad)
+    n = len(posture_rad)
+    cz, sz, cx, sx = np.cos(z_angle), np.sin(z_angle), np.cos(x_angle), np.sin(x_angle)
+    rotations = np.empty((n, N_BONES, 3, 3))
+    rotations[..., 0, 0], rotations[..., 0, 1], rotations[..., 0, 2] = cz, -sz * cx, sz * sx
+    rotations[..., 1, 0], rotations[..., 1, 1], rotations[..., 1, 2] = sz, cz * cx, -cz * sx
+    rotations[..., 2, 0], rotations[..., 2, 1], rotations[..., 2, 2] = 0.0, sx, cx
+    return rotations
+
+
+def _bone_angles(
+    posture_rad: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(N, 16)`` z and x angles of every bone's joint for ``(N, 20)`` postures (0 for
+    the palm and for joints without that part)."""
     n = len(posture_rad)
     z_angle = np.zeros((n, N_BONES))
     x_angle = np.zeros((n, N_BONES))
@@ -213,12 +228,7 @@ def joint_rotations(posture_rad: NDArray[np.float64]) -> NDArray[np.float64]:
         first, base = 1 + 3 * finger, 4 * finger
         z_angle[:, first] = posture_rad[:, base]
         x_angle[:, first : first + 3] = -posture_rad[:, base + 1 : base + 4]
-    cz, sz, cx, sx = np.cos(z_angle), np.sin(z_angle), np.cos(x_angle), np.sin(x_angle)
-    rotations = np.empty((n, N_BONES, 3, 3))
-    rotations[..., 0, 0], rotations[..., 0, 1], rotations[..., 0, 2] = cz, -sz * cx, sz * sx
-    rotations[..., 1, 0], rotations[..., 1, 1], rotations[..., 1, 2] = sz, cz * cx, -cz * sx
-    rotations[..., 2, 0], rotations[..., 2, 1], rotations[..., 2, 2] = 0.0, sx, cx
-    return rotations
+    return z_angle, x_angle
 
 
 @dataclass(frozen=True)
@@ -256,22 +266,23 @@ def forward_kinematics(posture_rad: ArrayLike, skeleton: Skeleton | None = None)
     posture = posture.reshape(-1, N_JOINTS)
     skeleton = skeleton or make_skeleton()
     n = len(posture)
-    local = np.tile(np.eye(4), (n, N_BONES, 1, 1))
-    local[:, :, :3, :3] = skeleton.rest_before @ joint_rotations(posture) @ skeleton.rest_after
-    local[:, :, :3, 3] = skeleton.offsets_m
-    world = np.empty_like(local)
-    world[:, 0] = local[:, 0]
-    for bone in range(1, N_BONES):
-        world[:, bone] = world[:, BONE_PARENTS[bone]] @ local[:, bone]
-    keypoints = np.zeros((n, N_KEYPOINTS, 3))
-    for finger in range(5):
-        first = 1 + 3 * finger
-        for segment in range(3):
-            keypoints[:, 1 + 4 * finger + segment] = world[:, first + segment, :3, 3]
-        tip_local = np.array([0.0, skeleton.lengths_m[first + 2], 0.0])
-        last = world[:, first + 2]
-        keypoints[:, 4 + 4 * finger] = last[:, :3, :3] @ tip_local + last[:, :3, 3]
+    z_angle, x_angle = _bone_angles(posture)
+    world = np.empty((n, N_BONES, 4, 4))
+    keypoints = np.empty((n, N_KEYPOINTS, 3))
+    _kinematics_kernels.chain(
+        z_angle, x_angle,
+        np.ascontiguousarray(skeleton.rest_before, dtype=np.float64),
+        np.ascontiguousarray(skeleton.rest_after, dtype=np.float64),
+        np.ascontiguousarray(skeleton.offsets_m, dtype=np.float64),
+        _PARENTS, np.ascontiguousarray(skeleton.lengths_m[_LAST_BONES], dtype=np.float64),
+        world, keypoints,
+    )  # fmt: skip
     return Kinematics(keypoints, world)
+
+
+_PARENTS = np.asarray(BONE_PARENTS, dtype=np.int64)
+_LAST_BONES = np.array([3 + 3 * finger for finger in range(5)])
+"""The last bone of every finger (its tip lies along that bone's y axis)."""
 
 
 def transform_points(points: ArrayLike, rotation: ArrayLike, translation_m: ArrayLike) -> NDArray:

@@ -156,3 +156,36 @@ def test_bad_postures_raise_naming_the_argument(bad):
 def test_bad_hand_length_raises():
     with pytest.raises(ValueError, match="hand_length_m"):
         make_skeleton(2.0)
+
+
+def _numpy_forward_kinematics(posture_rad, skeleton):
+    """The straightforward numpy chain the compiled kernel replaced (the reference)."""
+    from glovedb.hand_model import N_BONES, N_KEYPOINTS, joint_rotations
+
+    n = len(posture_rad)
+    local = np.tile(np.eye(4), (n, N_BONES, 1, 1))
+    local[:, :, :3, :3] = skeleton.rest_before @ joint_rotations(posture_rad) @ skeleton.rest_after
+    local[:, :, :3, 3] = skeleton.offsets_m
+    world = np.empty_like(local)
+    world[:, 0] = local[:, 0]
+    for bone in range(1, N_BONES):
+        world[:, bone] = world[:, BONE_PARENTS[bone]] @ local[:, bone]
+    keypoints = np.zeros((n, N_KEYPOINTS, 3))
+    for finger in range(5):
+        first = 1 + 3 * finger
+        for segment in range(3):
+            keypoints[:, 1 + 4 * finger + segment] = world[:, first + segment, :3, 3]
+        tip_local = np.array([0.0, skeleton.lengths_m[first + 2], 0.0])
+        last = world[:, first + 2]
+        keypoints[:, 4 + 4 * finger] = last[:, :3, :3] @ tip_local + last[:, :3, 3]
+    return keypoints, world
+
+
+@pytest.mark.parametrize("hand_length_m", [0.16, 0.19, 0.22])
+def test_compiled_chain_is_the_numpy_chain(hand_length_m):
+    skeleton = make_skeleton(hand_length_m)
+    postures = np.random.default_rng(4).uniform(-1.6, 1.6, (40, 20))  # beyond the limits too
+    keypoints, world = _numpy_forward_kinematics(postures, skeleton)
+    kinematics = forward_kinematics(postures, skeleton)
+    np.testing.assert_allclose(kinematics.bone_transforms, world, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(kinematics.keypoints_m, keypoints, rtol=0, atol=1e-14)
