@@ -144,16 +144,3 @@ def test_frames_prepared_ahead_track_as_frames_in_turn(open_pinch_power_database
         assert all(r["timing_ms"]["total"] > r["timing_ms"]["segment"] for r in records)
         poses[read_ahead] = [{k: v for k, v in r.items() if k != "timing_ms"} for r in records]
     assert poses[2] == poses[0]
-
-
-def test_a_start_needs_more_confidence_than_a_tracked_frame():
-    from tracker.pipeline import TrackerSettings, fit_quality, fit_trusted
-
-    settings = TrackerSettings()
-    matched, outside, rms_m = 0.625, 0.2, 0.0  # confidence 0.625 * 0.8 = 0.5
-    assert fit_quality(matched, outside, rms_m) == pytest.approx(0.5)
-    assert settings.min_fit_confidence < 0.5 < settings.min_start_confidence
-    assert fit_trusted(matched, outside, rms_m, settings, starting=False)
-    assert not fit_trusted(matched, outside, rms_m, settings, starting=True)
-    with pytest.raises(ValueError, match="min_start_confidence"):
-        TrackerSettings(min_start_confidence=1.5)

@@ -336,3 +336,16 @@ def test_a_warm_fit_that_leaves_the_hand_asks_the_lookup_again(open_pinch_power_
     # From the open hand the warm fit stays 32 deg from the fist; from the lookup's
     # start (the database's power grasp, its nearest posture), 17.
     assert errors[0.03] < 20.0 and errors[1.0] > 1.5 * errors[0.03]
+
+
+def test_a_start_needs_more_confidence_than_a_tracked_frame():
+    from tracker.pipeline import TrackerSettings, fit_quality, fit_trusted
+
+    settings = TrackerSettings()
+    matched, outside, rms_m = 0.625, 0.2, 0.0  # confidence 0.625 * 0.8 = 0.5
+    assert fit_quality(matched, outside, rms_m) == pytest.approx(0.5)
+    assert settings.min_fit_confidence < 0.5 < settings.min_start_confidence
+    assert fit_trusted(matched, outside, rms_m, settings, starting=False)
+    assert not fit_trusted(matched, outside, rms_m, settings, starting=True)
+    with pytest.raises(ValueError, match="min_start_confidence"):
+        TrackerSettings(min_start_confidence=1.5)
