@@ -189,35 +189,12 @@ def make_skeleton(hand_length_m: float = DEFAULT_HAND_LENGTH_M) -> Skeleton:
     return Skeleton(scale, offsets, rest_before, rest_after, lengths)
 
 
-def joint_rotations(posture_rad: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Joint rotation of every bone for a batch of postures.
-
-    Parameters
-    ----------
-    posture_rad : (N, 20) float64
-
-    Returns
-    -------
-    (N, 16, 3, 3) float64
-        Identity for the palm.
-    """
-    # Every joint is Rz(z_angle) @ Rx(x_angle) about the parent's axes; joints without
-    # a z part have z_angle 0. Built from cos and sin directly.
-    z_angle, x_angle = _bone_angles(posture_rad)
-    n = len(posture_rad)
-    cz, sz, cx, sx = np.cos(z_angle), np.sin(z_angle), np.cos(x_angle), np.sin(x_angle)
-    rotations = np.empty((n, N_BONES, 3, 3))
-    rotations[..., 0, 0], rotations[..., 0, 1], rotations[..., 0, 2] = cz, -sz * cx, sz * sx
-    rotations[..., 1, 0], rotations[..., 1, 1], rotations[..., 1, 2] = sz, cz * cx, -cz * sx
-    rotations[..., 2, 0], rotations[..., 2, 1], rotations[..., 2, 2] = 0.0, sx, cx
-    return rotations
-
-
-def _bone_angles(
+def bone_angles(
     posture_rad: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """``(N, 16)`` z and x angles of every bone's joint for ``(N, 20)`` postures (0 for
-    the palm and for joints without that part)."""
+    the palm and for joints without that part): the joint rotates its bone by
+    ``Rz(z) @ Rx(x)`` about the parent's axes."""
     n = len(posture_rad)
     z_angle = np.zeros((n, N_BONES))
     x_angle = np.zeros((n, N_BONES))
@@ -266,7 +243,7 @@ def forward_kinematics(posture_rad: ArrayLike, skeleton: Skeleton | None = None)
     posture = posture.reshape(-1, N_JOINTS)
     skeleton = skeleton or make_skeleton()
     n = len(posture)
-    z_angle, x_angle = _bone_angles(posture)
+    z_angle, x_angle = bone_angles(posture)
     world = np.empty((n, N_BONES, 4, 4))
     keypoints = np.empty((n, N_KEYPOINTS, 3))
     _kinematics_kernels.chain(

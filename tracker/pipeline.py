@@ -757,8 +757,7 @@ class Tracker(Closing):
 
 def _latency_ms(prepared: PreparedFrame, started: float) -> float:
     """Milliseconds of a frame's preparation and of its tracking since ``started``."""
-    preparation = prepared.timing_ms.get("classify", 0.0) + prepared.timing_ms.get("segment", 0.0)
-    return preparation + (time.perf_counter() - started) * 1000.0
+    return sum(prepared.timing_ms.values()) + (time.perf_counter() - started) * 1000.0
 
 
 def fit_trusted(

@@ -110,12 +110,13 @@ def hand_region(
     if not glove.any():
         return _empty_region()
     square = np.ones((3, 3), np.uint8)
-    closed = cv2.morphologyEx(glove.astype(np.uint8), cv2.MORPH_CLOSE, square)
+    glove_u8 = glove.astype(np.uint8)
+    closed = cv2.morphologyEx(glove_u8, cv2.MORPH_CLOSE, square)
     count, blobs, stats, _ = cv2.connectedComponentsWithStats(closed, connectivity=8)
     # Solid glove: what survives an opening (isolated pixels, a dark room's color noise,
     # do not). The hand is the blob with the most of it, and its depth is the solid
     # part's: noise connected to the hand into one blob must not decide either.
-    solid = cv2.morphologyEx(glove.astype(np.uint8), cv2.MORPH_OPEN, square).astype(bool)
+    solid = cv2.morphologyEx(glove_u8, cv2.MORPH_OPEN, square).astype(bool)
     sizes = np.bincount(blobs[solid], minlength=count)[1:]
     if not sizes.any():
         return _empty_region()

@@ -120,8 +120,7 @@ def run_track(args: argparse.Namespace) -> int:
 
     from tracker.benchmark import benchmark_tracking
 
-    if not 0 <= args.read_ahead <= 64:
-        raise ValueError(f"--read-ahead: expected 0 to 64, got {args.read_ahead}")
+    _check_read_ahead(args.read_ahead)
     figures = benchmark_tracking(args.source, args.db, read_ahead=args.read_ahead).as_dict()
     if args.json:
         print(json.dumps(figures))
@@ -129,8 +128,7 @@ def run_track(args: argparse.Namespace) -> int:
     machine = figures["machine"]
     print(f"{args.source} with {args.db}: {figures['frames']} frames, hand found in "
           f"{figures['hand_found']} ({machine['cpu']}, {machine['cores']} cores)")  # fmt: skip
-    since_launch = figures["first_pose_since_launch_s"]
-    launch = "" if since_launch is None else f" ({since_launch:.2f} s after the command started)"
+    launch = _after_launch(figures["first_pose_since_launch_s"])
     print(f"  startup            {figures['startup_s']:.2f} s, first pose after "
           f"{figures['first_pose_s']:.2f} s{launch}")  # fmt: skip
     print(f"  end to end         {figures['end_to_end_fps']:.1f} frames/s "
@@ -150,8 +148,7 @@ def run_fingertips(args: argparse.Namespace) -> int:
 
     from fingertips.benchmark import benchmark_detection
 
-    if not 0 <= args.read_ahead <= 64:
-        raise ValueError(f"--read-ahead: expected 0 to 64, got {args.read_ahead}")
+    _check_read_ahead(args.read_ahead)
     figures = benchmark_detection(args.source, args.model, read_ahead=args.read_ahead).as_dict()
     if args.json:
         print(json.dumps(figures))
@@ -160,8 +157,7 @@ def run_fingertips(args: argparse.Namespace) -> int:
     model = args.model or "the shipped model"
     print(f"{args.source} with {model}: {figures['frames']} frames, {figures['detections']} "
           f"fingertips ({machine['cpu']}, {machine['cores']} cores)")  # fmt: skip
-    since_launch = figures["first_detection_since_launch_s"]
-    launch = "" if since_launch is None else f" ({since_launch:.2f} s after the command started)"
+    launch = _after_launch(figures["first_detection_since_launch_s"])
     print(f"  startup            {figures['startup_s']:.2f} s, first detections after "
           f"{figures['first_detection_s']:.2f} s{launch}")  # fmt: skip
     print(f"  end to end         {figures['end_to_end_fps']:.1f} frames/s, "
@@ -169,6 +165,16 @@ def run_fingertips(args: argparse.Namespace) -> int:
           f"(read ahead {figures['read_ahead']})")  # fmt: skip
     print_stages(figures["stages_ms"], ("median", "p95", "p99", "mean", "max"))
     return 0
+
+
+def _check_read_ahead(frames: int) -> None:
+    if not 0 <= frames <= 64:
+        raise ValueError(f"--read-ahead: expected 0 to 64, got {frames}")
+
+
+def _after_launch(seconds: float | None) -> str:
+    """`` (S s after the command started)``, or nothing where the system does not tell."""
+    return "" if seconds is None else f" ({seconds:.2f} s after the command started)"
 
 
 def print_stages(stages_ms: dict[str, dict[str, float]], columns: tuple[str, ...]) -> None:

@@ -160,11 +160,17 @@ def test_bad_hand_length_raises():
 
 def _numpy_forward_kinematics(posture_rad, skeleton):
     """The straightforward numpy chain the compiled kernel replaced (the reference)."""
-    from glovedb.hand_model import N_BONES, N_KEYPOINTS, joint_rotations
+    from glovedb.hand_model import N_BONES, N_KEYPOINTS, bone_angles
 
     n = len(posture_rad)
+    z_angle, x_angle = bone_angles(posture_rad)
+    cz, sz, cx, sx = np.cos(z_angle), np.sin(z_angle), np.cos(x_angle), np.sin(x_angle)
+    joints = np.empty((n, N_BONES, 3, 3))
+    joints[..., 0, 0], joints[..., 0, 1], joints[..., 0, 2] = cz, -sz * cx, sz * sx
+    joints[..., 1, 0], joints[..., 1, 1], joints[..., 1, 2] = sz, cz * cx, -cz * sx
+    joints[..., 2, 0], joints[..., 2, 1], joints[..., 2, 2] = 0.0, sx, cx
     local = np.tile(np.eye(4), (n, N_BONES, 1, 1))
-    local[:, :, :3, :3] = skeleton.rest_before @ joint_rotations(posture_rad) @ skeleton.rest_after
+    local[:, :, :3, :3] = skeleton.rest_before @ joints @ skeleton.rest_after
     local[:, :, :3, 3] = skeleton.offsets_m
     world = np.empty_like(local)
     world[:, 0] = local[:, 0]

@@ -15,7 +15,7 @@ every bone below its joint about the joint's current axis ``a_j`` through its pi
     dv/dtheta_j = s_j * a_j x (sum_b w_b [j moves b] (M_b @ v_rest) - (sum_b w_b [j moves b]) c_j)
 
 with ``M_b`` the bone's skinning matrix and ``s_j = +-1`` the sign of the angle in the
-joint's rotation (:func:`glovedb.hand_model.joint_rotations`).
+joint's rotation (:func:`glovedb.hand_model.bone_angles`).
 
 The model surface is a set of samples of the skinned glove mesh (vertex positions,
 rest normals and color classes), posed without the mesh's faces: normals follow the
@@ -67,7 +67,7 @@ _PROPORTION_STEP = 1e-3
 
 def _dof_table() -> tuple[NDArray[np.int64], NDArray[np.bool_], NDArray[np.float64]]:
     """For every joint angle: its bone, whether it is the bone's z (else x) rotation,
-    and its sign in :func:`glovedb.hand_model.joint_rotations`."""
+    and its sign in :func:`glovedb.hand_model.bone_angles`."""
     bone = np.zeros(N_JOINTS, dtype=np.int64)
     about_z = np.zeros(N_JOINTS, dtype=bool)
     sign = -np.ones(N_JOINTS)
