@@ -482,7 +482,7 @@ class Tracker(Closing):
                 detections = self._named_detections(frame, warm)
                 tip_targets = tip_targets_of(detections)
                 lap("fingertips")
-            fits.append(self._fit(observation, start, tip_targets))
+            fits.append(self._fit(observation, start, tip_targets, warm=start is warm))
             lap("fit")
         self._since_lookup += 1
         periodic = self._since_lookup >= self.settings.reinit_every
@@ -569,14 +569,21 @@ class Tracker(Closing):
         return fit_trusted(fit.matched, fit.outside, fit.rms_m, self.settings, starting=starting)
 
     def _fit(
-        self, observation: Observation, start: HandPose, tip_targets: NDArray[np.float64] | None
+        self,
+        observation: Observation,
+        start: HandPose,
+        tip_targets: NDArray[np.float64] | None,
+        *,
+        warm: bool = False,
     ) -> FrameFit:
+        """Fit the frame from ``start``; ``warm``: the start is the previous frame's
+        solution (the fit then holds the fingers the camera does not see)."""
         previous = None if self._previous is None else self._previous.keypoints_m
         return fit_frame(
             self.samples, observation, start, settings=self.settings.fit, prior=self.prior,
             previous_keypoints_m=previous, tip_targets_m=tip_targets,
             estimate_proportions=self.calibrating,
-            proportion_information=self._proportion_information,
+            proportion_information=self._proportion_information, hold_unseen=warm,
         )  # fmt: skip
 
     def _background_job(

@@ -28,6 +28,7 @@ from tracker.generative.energy.reference import (
     posture_information,
     reference_basis,
     reference_residuals,
+    unseen_fingers,
 )
 from tracker.generative.energy.residuals import Residuals
 from tracker.generative.energy.silhouette import silhouette_residuals
@@ -41,6 +42,7 @@ from tracker.generative.model import (
     PosedHand,
     hand_samples,
 )
+from tracker.generative.observation import look_up
 from tracker.generative.solver import levenberg_marquardt
 
 
@@ -254,6 +256,50 @@ def test_the_reference_leaves_observed_fingers_free(samples):
     fit = fit_frame(samples, observation, start, settings=settings, prior=load_posture_prior())
     error = np.degrees(abs(fit.pose.posture_rad[index_mcp] - truth.posture_rad[index_mcp]))
     assert error < 2.0
+
+
+def test_a_finger_the_data_does_not_see_is_held(samples):
+    """Without the observed points on the thumb, and with the observed depth 3 cm
+    in front of it (the camera sees the palm there), the thumb's four joints are
+    unseen and the others are not; a fit then keeps the thumb where it started instead
+    of letting it wander. Missing points alone, with nothing in front, do not make a
+    finger unseen."""
+    truth = _pose("open")
+    observation = _observation(samples, truth)
+    hand = PosedHand(samples, truth)
+    share = FitSettings().unseen_finger_share
+    pairing = {"gate_m": 0.03, "depth_scale": 0.5, "depth_margin_m": 0.012}
+    assert not unseen_fingers(hand, observation, share=share, **pairing).any()
+    thumb = np.isin(samples.mesh.dominant_bone, [1, 2, 3])
+    gap = np.linalg.norm(
+        observation.points_m[:, None, :] - hand.points_m[None, thumb, :], axis=2
+    ).min(axis=1)
+    kept = gap > 0.005
+    without_points = replace(
+        observation, points_m=observation.points_m[kept], labels=observation.labels[kept]
+    )
+    assert not unseen_fingers(hand, without_points, share=share, **pairing).any()
+    thumb_facing = np.flatnonzero(thumb & hand.facing)
+    pixels = look_up(observation, hand.points_m[thumb_facing])
+    depth = observation.depth_m.copy()  # the box around the thumb, 15 px wider
+    rows = slice(max(pixels.row.min() - 15, 0), pixels.row.max() + 16)
+    cols = slice(max(pixels.col.min() - 15, 0), pixels.col.max() + 16)
+    depth[rows, cols] = hand.points_m[thumb_facing, 2].min() - 0.03
+    without_thumb = replace(without_points, depth_m=depth)
+    unseen = unseen_fingers(hand, without_thumb, share=share, **pairing)
+    assert unseen.tolist() == [True] * 4 + [False] * 16
+    start_posture = truth.posture_rad.copy()
+    start_posture[JOINT_NAMES.index("thumb_cmc_abd")] += np.radians(15.0)
+    start = HandPose(start_posture, truth.rotation, truth.translation_m)
+    prior = load_posture_prior()
+    moved = {}
+    for label, settings in (("held", FitSettings()), ("free", FitSettings(unseen_finger_share=0))):
+        fit = fit_frame(
+            samples, without_thumb, start, settings=settings, prior=prior, hold_unseen=True
+        )
+        assert fit.hidden is not None and fit.hidden[:4].all() == (label == "held")
+        moved[label] = np.degrees(np.abs(fit.pose.posture_rad[:4] - start_posture[:4]).max())
+    assert moved["held"] < 1.0 < moved["free"]
 
 
 def test_fingertips_without_targets_add_nothing(samples):

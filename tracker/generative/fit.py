@@ -41,6 +41,7 @@ from tracker.generative.energy.reference import (
     posture_information,
     reference_basis,
     reference_residuals,
+    unseen_fingers,
 )
 from tracker.generative.energy.residuals import Residuals
 from tracker.generative.energy.silhouette import NAME as SILHOUETTE
@@ -119,7 +120,12 @@ class FitSettings:
         reference weight along it is divided by sqrt(2); better observed directions
         are held less.
     hidden_reference_weight : float
-        Per radian, for joints whose finger an object hides at the start.
+        Per radian, for joints whose finger an object hides at the start, or that the
+        data does not see (``unseen_finger_share``).
+    unseen_finger_share : float
+        A finger with fewer paired observed points than this share of its
+        camera-facing samples at the start, most of them behind the observed depth,
+        is unseen and held like a hidden one; 0 turns this off.
     fingertip_weight : float
         Per metre of a named fingertip detection beyond its dead band.
     fingertip_deadband_m : float
@@ -155,6 +161,7 @@ class FitSettings:
     reference_scale_deg: float = 10.0
     observed_information: float = 0.01
     hidden_reference_weight: float = 20.0
+    unseen_finger_share: float = 0.05
     fingertip_weight: float = 300.0
     fingertip_deadband_m: float = 0.015
     proportion_weight: float = 3.0
@@ -203,7 +210,8 @@ class FrameFit:
         RMS point-to-plane distance of the paired points (before the Huber loss).
     iterations : int
     hidden : (20,) bool or None
-        Joints whose finger an object hid at the start (held by the reference term).
+        Joints whose finger an object hid at the start or the data did not see (held
+        by the reference term).
     proportion_information : (7, 7) float64 or None
         When the proportions were estimated: the information about them after this
         frame (module docstring), to give to the next frame's fit.
@@ -312,6 +320,7 @@ def fit_frame(
     tip_targets_m: NDArray[np.float64] | None = None,
     estimate_proportions: bool = False,
     proportion_information: NDArray[np.float64] | None = None,
+    hold_unseen: bool = False,
 ) -> FrameFit:
     """Fit the hand to one frame from a start pose (module docstring).
 
@@ -332,6 +341,10 @@ def fit_frame(
     proportion_information : (7, 7) float, optional
         The information about them from earlier frames (``FrameFit.
         proportion_information``); ``proportion_weight**2 * I`` if not given.
+    hold_unseen : bool
+        Hold the fingers the camera does not see (``unseen_finger_share``) at the
+        start's angles: for a start from the previous frame's solution, not from a
+        database posture, which is a guess.
 
     Returns
     -------
@@ -353,6 +366,12 @@ def fit_frame(
         margin_px=settings.silhouette_margin_px + HIDDEN_EDGE_PX,
         depth_margin_m=settings.depth_margin_m,
     )
+    if hold_unseen and settings.unseen_finger_share > 0:
+        hidden |= unseen_fingers(
+            start_hand, observation, share=settings.unseen_finger_share,
+            gate_m=settings.data_gate_m, depth_scale=settings.data_depth_scale,
+            depth_margin_m=settings.depth_margin_m,
+        )  # fmt: skip
     kwargs = {
         "settings": settings,
         "prior": prior,
