@@ -145,7 +145,7 @@ class FitSettings:
     max_points: int = 1500
     sample_spacing: int = 2
     data_weight: float = 1000.0
-    data_huber_m: float = 0.006
+    data_huber_m: float = 0.004
     data_gate_m: float = 0.03
     data_depth_scale: float = 0.5
     silhouette_weight: float = 300.0
