@@ -1,8 +1,9 @@
 """The user's cache folder: what is slow to make and the same every time.
 
 ``$GLOVE_CACHE``, else ``$XDG_CACHE_HOME/glove``, else ``~/.cache/glove``. It holds
-the demo's database and the generated hand meshes (:func:`glovedb.mesh.
-cached_hand_mesh`). Every entry's name carries a hash of what decides its contents,
+the demo's database, the generated hand meshes (:func:`glovedb.mesh.
+cached_hand_mesh`) and the search stages of large databases (:mod:`glovedb.
+stage_cache`). Every entry's name carries a hash of what decides its contents,
 the code that makes it included, so a changed input or a new version makes a new
 entry instead of reusing a stale one. Deleting the folder is always safe.
 """

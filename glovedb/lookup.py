@@ -39,6 +39,14 @@ from glovedb.search import (
     pack_tiny_images,
     parse_cascade,
 )
+from glovedb.stage_cache import (
+    CACHE_AT_LEAST,
+    load_first_stage,
+    load_rows,
+    save_first_stage,
+    save_rows,
+    stage_path,
+)
 
 DEFAULT_CASCADE = "8:2000,16:300,64:3"
 # The thesis' cascade (Figure 4.10), kept for comparison.
@@ -170,9 +178,24 @@ class DatabaseIndex(Closing):
         return self._packed[size]
 
     def first_stage_images(self, size: int) -> PackedTinyImages | DistinctTinyImages:
-        """What a first stage at ``size`` scans (made on first use; see ``first_stage``)."""
+        """What a first stage at ``size`` scans (made on first use; see ``first_stage``;
+        kept between runs for large databases, :mod:`glovedb.stage_cache`)."""
         if size in self._first:
             return self._first[size]
+        if self.entries < CACHE_AT_LEAST:
+            return self._make_first_stage(size)
+        path = stage_path(self.path, size=size, entries=self.entries, choice=self.first_stage)
+        stage = load_first_stage(path, entries=self.entries)
+        if stage is None:
+            stage = self._make_first_stage(size)
+            save_first_stage(path, stage)
+        self._first[size] = stage
+        if isinstance(stage, PackedTinyImages):
+            self._packed[size] = stage
+        return stage
+
+    def _make_first_stage(self, size: int) -> PackedTinyImages | DistinctTinyImages:
+        """Decode the file's images of ``size`` and group or pack them."""
         images = self._database.images(size)
         # Every image of the file is shown by an entry, tiled or not.
         if self.first_stage == "distinct" or (
@@ -200,8 +223,20 @@ class DatabaseIndex(Closing):
         """Images of the given entries, ``(len(ids), s, s) uint8``."""
         base = self.base_ids(ids)
         if size not in self._rows:
-            self._rows[size] = _row_source(self._database, size)
+            self._rows[size] = self._row_source(size)
         return np.asarray(self._rows[size][base])
+
+    def _row_source(self, size: int) -> _RowReader | NDArray[np.uint8]:
+        """:func:`_row_source`; decoded rows of a large database kept between runs
+        (:mod:`glovedb.stage_cache`)."""
+        if self.base_entries < CACHE_AT_LEAST or not _decodes_whole(self._database, size):
+            return _row_source(self._database, size)
+        path = stage_path(self.path, size=size, entries=self.base_entries, choice="rows")
+        rows = load_rows(path, shape=(self.base_entries, size, size))
+        if rows is None:
+            rows = self._database.images(size)
+            save_rows(path, rows)
+        return rows
 
     def sources(self, stages: tuple[CascadeStage, ...]) -> dict[int, TinyImageSource]:
         """What :func:`~glovedb.search.cascade_search` needs for these stages."""
@@ -301,8 +336,16 @@ def _row_source(database: GloveDatabase, size: int) -> _RowReader | NDArray[np.u
     """Where the rows of one size come from: every image decoded into memory when they
     are small or cannot be read row by row (format 1's compressed sizes), else
     positioned reads from the file (where the system has ``os.pread``)."""
+    if _decodes_whole(database, size):
+        return database.images(size)
     layout = database.row_layout(size)
-    if layout is not None and layout.file_offset is not None and hasattr(os, "pread"):
-        if (len(layout.offsets) - 1) * size * size > _IN_MEMORY_BYTES:
-            return _RowReader(database.path, layout)
-    return database.images(size)
+    assert layout is not None
+    return _RowReader(database.path, layout)
+
+
+def _decodes_whole(database: GloveDatabase, size: int) -> bool:
+    """Whether :func:`_row_source` decodes the rows of ``size`` whole."""
+    layout = database.row_layout(size)
+    if layout is None or layout.file_offset is None or not hasattr(os, "pread"):
+        return True
+    return (len(layout.offsets) - 1) * size * size <= _IN_MEMORY_BYTES

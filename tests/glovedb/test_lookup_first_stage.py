@@ -1,4 +1,7 @@
-"""DatabaseIndex's first stage: distinct images or every entry, the same lookups."""
+"""DatabaseIndex's first stage (distinct images or every entry, the same lookups) and
+what a large database keeps in the cache folder between runs."""
+
+import os
 
 import numpy as np
 import pytest
@@ -33,3 +36,84 @@ def test_auto_scans_distinct_images_only_when_they_repeat(small_database):
         assert isinstance(plain.first_stage_images(8), PackedTinyImages)
     with pytest.raises(ValueError, match="first_stage"):
         DatabaseIndex(small_database, first_stage="tree")  # type: ignore[arg-type]
+
+
+def test_a_large_first_stage_is_kept_between_runs(small_database, tmp_path, monkeypatch):
+    from glovedb.stage_cache import CACHE_AT_LEAST, stage_path
+
+    monkeypatch.setenv("GLOVE_CACHE", str(tmp_path))
+    entries = CACHE_AT_LEAST  # tiled: the smallest database that is cached
+    path = stage_path(small_database, size=8, entries=entries, choice="scan")
+    with DatabaseIndex(small_database, tile_to=entries, first_stage="scan") as index:
+        made = index.first_stage_images(8)
+        assert path.is_file()
+        query = {size: index.rows(size, np.array([123]))[0] for size in index.resolutions}
+        expected = index.search(query, "8:40,16:10,32:3")
+
+    def refuse(self, size):
+        raise AssertionError("made again instead of loaded")
+
+    with monkeypatch.context() as patch:  # a second run loads it, and finds the same
+        patch.setattr(DatabaseIndex, "_make_first_stage", refuse)
+        with DatabaseIndex(small_database, tile_to=entries, first_stage="scan") as index:
+            loaded = index.first_stage_images(8)
+            found = index.search(query, "8:40,16:10,32:3")
+    assert isinstance(loaded, PackedTinyImages) and isinstance(made, PackedTinyImages)
+    np.testing.assert_array_equal(loaded.codes, made.codes)
+    np.testing.assert_array_equal(loaded.glove_pixels, made.glove_pixels)
+    np.testing.assert_array_equal(found.entry_ids, expected.entry_ids)
+    np.testing.assert_array_equal(found.errors, expected.errors)
+
+    path.write_bytes(b"not an npz")  # a damaged entry is made again and replaced
+    with DatabaseIndex(small_database, tile_to=entries, first_stage="scan") as index:
+        np.testing.assert_array_equal(index.first_stage_images(8).codes, made.codes)
+    with DatabaseIndex(small_database, tile_to=entries, first_stage="distinct") as index:
+        distinct = index.first_stage_images(8)  # another choice, another entry
+    assert isinstance(distinct, DistinctTinyImages) and distinct.num_entries == entries
+    assert len(list(path.parent.glob("*.npz"))) == 2
+
+
+def test_a_rebuilt_database_replaces_its_cache_entry(small_database, tmp_path, monkeypatch):
+    import glovedb.lookup
+    from glovedb.stage_cache import stage_path
+
+    monkeypatch.setenv("GLOVE_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(glovedb.lookup, "CACHE_AT_LEAST", 1)  # the small file counts as large
+    copy = tmp_path / "copy.h5"
+    copy.write_bytes(small_database.read_bytes())
+    with DatabaseIndex(copy) as index:
+        entries = index.entries
+    before = stage_path(copy, size=8, entries=entries, choice="auto")
+    assert before.is_file()
+    stat = copy.stat()  # "rebuilt": a newer modification time
+    os.utime(copy, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000_000))
+    after = stage_path(copy, size=8, entries=entries, choice="auto")
+    assert after != before
+    with DatabaseIndex(copy) as index:
+        index.first_stage_images(8)
+    assert after.is_file() and not before.exists()  # one copy per database, not per build
+    assert stage_path(copy, size=16, entries=entries, choice="auto") != after
+
+
+def test_decoded_rows_of_a_large_database_are_kept_in_the_cache(
+    small_database, tmp_path, monkeypatch
+):
+    import glovedb.lookup
+    from glovedb.stage_cache import stage_path
+
+    monkeypatch.setenv("GLOVE_CACHE", str(tmp_path))
+    monkeypatch.setattr(glovedb.lookup, "CACHE_AT_LEAST", 1)  # the small file counts as large
+    ids = np.array([5, 77, 3, 5])
+    with DatabaseIndex(small_database) as index:
+        entries = index.entries
+        first = {size: index.rows(size, ids) for size in index.resolutions}
+    for size in index.resolutions:  # every size of a small file is decoded whole
+        assert stage_path(small_database, size=size, entries=entries, choice="rows").is_file()
+
+    def refuse(self, size):
+        raise AssertionError("decoded again instead of read back")
+
+    monkeypatch.setattr(GloveDatabase, "images", refuse)
+    with DatabaseIndex(small_database) as index:
+        for size, rows in first.items():
+            np.testing.assert_array_equal(index.rows(size, ids), rows)

@@ -1,0 +1,159 @@
+"""What a large database's search needs in memory, kept in the cache folder between runs.
+
+Opening a database for searching makes what the cascade's first stage scans
+(:meth:`glovedb.lookup.DatabaseIndex.first_stage_images`: every entry's smallest tiny
+image decoded, the distinct ones counted, packed) and decodes the middle sizes whole
+(:meth:`glovedb.lookup.DatabaseIndex.rows`: indexing memory is faster than reading
+rows from the file). For a million entries that took about 1.0 s for the 8x8 first
+stage and another 1.0 s for the 16x16 rows, most of a tracker's start; reading them
+back takes 0.05-0.6 s. Databases of at least :data:`CACHE_AT_LEAST` entries keep
+them in :func:`glovedb.cache.cache_folder` ``/ "stages"``: 34 bytes per entry for the
+8x8 first stage, ``s * s`` bytes per entry for decoded rows (256 at 16x16).
+
+The file name is two hashes: of what was asked (the database's resolved path, the
+size, the tiling, the first-stage choice), and of the version (the file's size,
+modification time and inode, so that a rebuilt or edited file is a new version, and
+the source of the modules that make the stage), so a stale entry is never read.
+Writing a version deletes the older versions of what was asked. An entry that cannot
+be read or does not fit is passed over and made again; one that cannot be written is
+not kept. Deleting the folder is always safe.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from glovedb._files import write_atomically
+from glovedb.cache import cache_folder, source_digest
+from glovedb.distinct_images import DistinctTinyImages
+from glovedb.packed_images import PackedTinyImages
+
+FirstStageImages = PackedTinyImages | DistinctTinyImages
+
+CACHE_AT_LEAST = 100_000
+"""Databases with fewer searchable entries make their first stage in well under 0.1 s
+and are not cached."""
+
+# What decides the stage's arrays: these modules' source is part of the cache key.
+_SOURCES = (
+    "stage_cache", "lookup", "database", "_row_codec", "packed_images", "distinct_images",
+)  # fmt: skip
+
+
+def stage_path(
+    database: str | os.PathLike[str],
+    *,
+    size: int,
+    entries: int,
+    choice: str,
+    folder: str | os.PathLike[str] | None = None,
+) -> Path:
+    """Where a stage of ``database`` at ``size`` is kept.
+
+    Parameters
+    ----------
+    database : path
+        The database file (it must exist).
+    size : int
+        Tiny image side, pixels.
+    entries : int
+        Searchable entries (the file's, or a benchmark's tiling).
+    choice : str
+        For a first stage, the index's ``first_stage`` setting (``"auto"``,
+        ``"distinct"`` or ``"scan"``); ``"rows"`` for decoded rows.
+    folder : path, optional
+        Default :func:`glovedb.cache.cache_folder` ``/ "stages"``.
+    """
+    source = Path(database).resolve()
+    status = source.stat()
+    asked = hashlib.sha256(f"{source} {size} {entries} {choice}".encode())
+    version = source_digest(*_SOURCES)
+    version.update(
+        f"{np.__version__} {status.st_size} {status.st_mtime_ns} {status.st_ino}".encode()
+    )
+    suffix = "npy" if choice == "rows" else "npz"
+    name = f"{asked.hexdigest()[:16]}-{version.hexdigest()[:16]}.{suffix}"
+    return Path(folder or cache_folder() / "stages") / name
+
+
+def _drop_older(path: Path) -> None:
+    """Delete what is kept for the same database, size and choice under another
+    version (the file was rebuilt, or the code changed): the folder holds one copy
+    per database, not one per build."""
+    asked = path.name.split("-")[0]
+    for other in path.parent.glob(f"{asked}-*"):
+        if other != path and not other.name.startswith("."):
+            other.unlink(missing_ok=True)
+
+
+def load_first_stage(path: str | os.PathLike[str], *, entries: int) -> FirstStageImages | None:
+    """The stage kept at ``path``, or None when there is none, it cannot be read, or
+    it does not hold ``entries`` entries."""
+    try:
+        with np.load(path, allow_pickle=False) as stored:
+            packed = PackedTinyImages(
+                np.ascontiguousarray(stored["codes"]),
+                stored["glove_pixels"],
+                int(stored["size"]),
+                int(stored["group"]),
+            )
+            if "entry_ids" not in stored:
+                return packed if packed.num_entries == entries else None
+            distinct = DistinctTinyImages(packed, stored["entry_ids"], stored["offsets"])
+            return distinct if distinct.num_entries == entries else None
+    except (OSError, ValueError, TypeError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
+
+
+def save_first_stage(path: str | os.PathLike[str], stage: FirstStageImages) -> None:
+    """Keep ``stage`` at ``path`` (whole or not at all; nothing is kept when the folder
+    cannot be written)."""
+    packed = stage.images if isinstance(stage, DistinctTinyImages) else stage
+    arrays: dict[str, Any] = {
+        "codes": packed.codes,
+        "glove_pixels": packed.glove_pixels,
+        "size": np.array(packed.size),
+        "group": np.array(packed.group),
+    }
+    if isinstance(stage, DistinctTinyImages):
+        arrays |= {"entry_ids": stage.entry_ids, "offsets": stage.offsets}
+    target = Path(path)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        write_atomically(target, lambda file: np.savez(file, **arrays))
+        _drop_older(target)
+    except OSError:
+        pass  # a read-only cache: the next run makes the stage again
+
+
+def load_rows(
+    path: str | os.PathLike[str], *, shape: tuple[int, int, int]
+) -> NDArray[np.uint8] | None:
+    """Decoded rows kept at ``path``, read into memory, or None when there are none,
+    they cannot be read or they do not have ``shape``. (Mapping the file instead
+    made the first lookups five times slower: every row they touch is a page fault.)"""
+    try:
+        rows = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError):
+        return None
+    if rows.shape != shape or rows.dtype != np.uint8:
+        return None
+    return np.asarray(rows, dtype=np.uint8)
+
+
+def save_rows(path: str | os.PathLike[str], rows: NDArray[np.uint8]) -> None:
+    """Keep decoded rows at ``path`` (whole or not at all)."""
+    target = Path(path)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        write_atomically(target, lambda file: np.save(file, rows, allow_pickle=False))
+        _drop_older(target)
+    except OSError:
+        pass  # a read-only cache: the next run decodes them again
