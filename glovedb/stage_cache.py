@@ -143,8 +143,8 @@ def load_rows(
         rows = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError):
         return None
-    if rows.shape != shape or rows.dtype != np.uint8:
-        return None
+    if not isinstance(rows, np.ndarray) or rows.shape != shape or rows.dtype != np.uint8:
+        return None  # an archive or another array under that name
     return np.asarray(rows, dtype=np.uint8)
 
 

@@ -110,6 +110,11 @@ def test_decoded_rows_of_a_large_database_are_kept_in_the_cache(
     for size in index.resolutions:  # every size of a small file is decoded whole
         assert stage_path(small_database, size=size, entries=entries, choice="rows").is_file()
 
+    damaged = stage_path(small_database, size=16, entries=entries, choice="rows")
+    damaged.write_bytes(b"\x93NUMPY not rows")  # decoded again, and kept again
+    with DatabaseIndex(small_database) as index:
+        np.testing.assert_array_equal(index.rows(16, ids), first[16])
+
     def refuse(self, size):
         raise AssertionError("decoded again instead of read back")
 
