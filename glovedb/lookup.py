@@ -182,13 +182,14 @@ class DatabaseIndex(Closing):
         kept between runs for large databases, :mod:`glovedb.stage_cache`)."""
         if size in self._first:
             return self._first[size]
-        if self.entries < CACHE_AT_LEAST:
-            return self._make_first_stage(size)
-        path = stage_path(self.path, size=size, entries=self.entries, choice=self.first_stage)
-        stage = load_first_stage(path, entries=self.entries)
+        path, stage = None, None
+        if self.entries >= CACHE_AT_LEAST:
+            path = stage_path(self.path, size=size, entries=self.entries, choice=self.first_stage)
+            stage = load_first_stage(path, entries=self.entries)
         if stage is None:
             stage = self._make_first_stage(size)
-            save_first_stage(path, stage)
+            if path is not None:
+                save_first_stage(path, stage)
         self._first[size] = stage
         if isinstance(stage, PackedTinyImages):
             self._packed[size] = stage
@@ -203,15 +204,11 @@ class DatabaseIndex(Closing):
             and distinct_image_count(images) <= _DISTINCT_AT_MOST * self.entries
         ):
             tiled = self.entries != self.base_entries
-            self._first[size] = distinct_tiny_images(
+            return distinct_tiny_images(
                 images,
                 image_of_entry=np.arange(self.entries) % self.base_entries if tiled else None,
             )
-            return self._first[size]
-        if size not in self._packed:
-            self._packed[size] = self._pack(images)
-        self._first[size] = self._packed[size]
-        return self._packed[size]
+        return self._packed[size] if size in self._packed else self._pack(images)
 
     def _pack(self, images: NDArray[np.uint8]) -> PackedTinyImages:
         """Pack the file's images of one size, repeated or cut to ``entries``."""
@@ -227,10 +224,20 @@ class DatabaseIndex(Closing):
         return np.asarray(self._rows[size][base])
 
     def _row_source(self, size: int) -> _RowReader | NDArray[np.uint8]:
-        """:func:`_row_source`; decoded rows of a large database kept between runs
-        (:mod:`glovedb.stage_cache`)."""
-        if self.base_entries < CACHE_AT_LEAST or not _decodes_whole(self._database, size):
-            return _row_source(self._database, size)
+        """Where the rows of one size come from: every image decoded into memory when
+        they are small or cannot be read row by row (format 1's compressed sizes), and
+        then kept between runs for a large database (:mod:`glovedb.stage_cache`), else
+        positioned reads from the file (where the system has ``os.pread``)."""
+        layout = self._database.row_layout(size)
+        if (
+            layout is not None
+            and layout.file_offset is not None
+            and hasattr(os, "pread")
+            and (len(layout.offsets) - 1) * size * size > _IN_MEMORY_BYTES
+        ):
+            return _RowReader(self.path, layout)
+        if self.base_entries < CACHE_AT_LEAST:
+            return self._database.images(size)
         path = stage_path(self.path, size=size, entries=self.base_entries, choice="rows")
         rows = load_rows(path, shape=(self.base_entries, size, size))
         if rows is None:
@@ -330,22 +337,3 @@ _IN_MEMORY_BYTES = 256 * 2**20
 """Sizes whose decoded images take up to this are read whole on first use: indexing
 memory is fastest (300 rows of 64 x 64, a tracker's last stage, take 0.2 ms against
 0.9 ms of positioned reads)."""
-
-
-def _row_source(database: GloveDatabase, size: int) -> _RowReader | NDArray[np.uint8]:
-    """Where the rows of one size come from: every image decoded into memory when they
-    are small or cannot be read row by row (format 1's compressed sizes), else
-    positioned reads from the file (where the system has ``os.pread``)."""
-    if _decodes_whole(database, size):
-        return database.images(size)
-    layout = database.row_layout(size)
-    assert layout is not None
-    return _RowReader(database.path, layout)
-
-
-def _decodes_whole(database: GloveDatabase, size: int) -> bool:
-    """Whether :func:`_row_source` decodes the rows of ``size`` whole."""
-    layout = database.row_layout(size)
-    if layout is None or layout.file_offset is None or not hasattr(os, "pread"):
-        return True
-    return (len(layout.offsets) - 1) * size * size <= _IN_MEMORY_BYTES

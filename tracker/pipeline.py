@@ -462,7 +462,7 @@ class Tracker(Closing):
         if observation is None:
             return self._not_found(prepared, timing, started)
         warm = None if self._previous is None else self._previous.pose
-        start, carried = warm, False
+        start = warm
         if warm is not None and self._background is not None:
             collected = self._background.collect(self._frame_index)
             if collected is not None:
@@ -475,7 +475,6 @@ class Tracker(Closing):
                     and background_fit.energy < warm_fit.energy
                 ):
                     start = carried_start(background_fit.pose, warm_fit.pose, warm)
-                    carried = True
         detections, tip_targets = None, None
         fits: list[FrameFit] = []
         if warm is not None and start is not None:
@@ -483,8 +482,9 @@ class Tracker(Closing):
                 detections = self._named_detections(frame, warm)
                 tip_targets = tip_targets_of(detections)
                 lap("fingertips")
-            # A carried start is the warm pose corrected: it holds unseen fingers too.
-            fits.append(self._fit(observation, start, tip_targets, warm=start is warm or carried))
+            # The warm pose, or it corrected by a background lookup: both hold unseen
+            # fingers.
+            fits.append(self._fit(observation, start, tip_targets, warm=True))
             lap("fit")
         self._since_lookup += 1
         periodic = self._since_lookup >= self.settings.reinit_every
@@ -579,7 +579,8 @@ class Tracker(Closing):
         warm: bool = False,
     ) -> FrameFit:
         """Fit the frame from ``start``; ``warm``: the start is the previous frame's
-        solution (the fit then holds the fingers the camera does not see)."""
+        solution, corrected or not (the fit then holds the fingers the camera does not
+        see)."""
         previous = None if self._previous is None else self._previous.keypoints_m
         return fit_frame(
             self.samples, observation, start, settings=self.settings.fit, prior=self.prior,

@@ -168,9 +168,8 @@ def track_source(
     folder = None if out is None else Path(out)
     started = time.perf_counter()
     fps = source.fps or 30.0
-    frames: Iterator[Frame | PreparedFrame]
     source_frames: Iterator[Frame] = iter(source)
-    frames = source_frames
+    frames: Iterator[Frame | PreparedFrame] = source_frames
     reader = None
     if read_ahead > 0 and source.kind not in LIVE_CAMERAS:
         frames = reader = Prefetch(map(tracker.prepare, source_frames), depth=read_ahead)

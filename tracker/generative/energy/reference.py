@@ -49,7 +49,7 @@ from glovedb.hand_model import N_BONES, N_JOINTS
 from tracker.generative.energy.data import nearest_of_class
 from tracker.generative.energy.residuals import Residuals
 from tracker.generative.model import MOVES, N_PARAMS, PosedHand
-from tracker.generative.observation import Observation, look_up
+from tracker.generative.observation import CropLookup, Observation, look_up
 from tracker.generative.solver import eliminated_information
 
 NAME = "reference"
@@ -89,20 +89,25 @@ def hidden_joints(
     observed hand mask, nearer than the sample in the observed depth), judged at the
     pose of ``hand``. The margin keeps the mask's edge, where colors blur and depth
     flies, from counting as an object."""
-    facing = np.flatnonzero(hand.facing)
-    points = hand.points_m[facing]
-    pixels = look_up(observation, points)
-    hidden = (
-        pixels.inside
-        & (pixels.outside_px > margin_px)
-        & (pixels.seen_m > 0)
-        & (pixels.seen_m < np.maximum(points[:, 2], 1e-3) - depth_margin_m)
-    )
+    facing, pixels, behind = _behind_observed_depth(hand, observation, depth_margin_m)
+    hidden = pixels.inside & (pixels.outside_px > margin_px) & behind
     bone = hand.samples.mesh.dominant_bone[facing]
     per_bone = np.bincount(bone, weights=hidden, minlength=N_BONES)
     count = np.bincount(bone, minlength=N_BONES)
     hidden_bone = (count >= 5) & (per_bone > 0.5 * np.maximum(count, 1))
     return np.asarray((MOVES * hidden_bone).any(axis=1), dtype=bool)
+
+
+def _behind_observed_depth(
+    hand: PosedHand, observation: Observation, depth_margin_m: float
+) -> tuple[NDArray[np.int64], CropLookup, NDArray[np.bool_]]:
+    """The camera-facing samples of ``hand``, where they project, and whether the
+    observed depth there lies more than ``depth_margin_m`` in front of them."""
+    facing = np.flatnonzero(hand.facing)
+    points = hand.points_m[facing]
+    pixels = look_up(observation, points)
+    behind = (pixels.seen_m > 0) & (pixels.seen_m < np.maximum(points[:, 2], 1e-3) - depth_margin_m)
+    return facing, pixels, behind
 
 
 def unseen_fingers(
@@ -138,9 +143,7 @@ def unseen_fingers(
         observation.points_m, observation.labels, hand.points_m, hand.samples.labels,
         gate_m=gate_m, depth_scale=depth_scale, candidates=hand.facing,
     )  # fmt: skip
-    facing = np.flatnonzero(hand.facing)
-    pixels = look_up(observation, hand.points_m[facing])
-    covered = (pixels.seen_m > 0) & (pixels.seen_m < hand.points_m[facing, 2] - depth_margin_m)
+    facing, _, covered = _behind_observed_depth(hand, observation, depth_margin_m)
     bone = hand.samples.mesh.dominant_bone
 
     def per_finger(counts: NDArray[Any]) -> NDArray[np.float64]:
