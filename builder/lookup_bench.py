@@ -33,7 +33,8 @@ from glovedb.camera import KINECT_V1
 from glovedb.chamfer import chamfer_maps
 from glovedb.database import GloveDatabase
 from glovedb.distinct_images import DistinctTinyImages
-from glovedb.lookup import DatabaseIndex, FirstStage
+from glovedb.inverted_lists import InvertedLists
+from glovedb.lookup import DatabaseIndex, FirstStage, FirstStageImages
 from glovedb.postures import load_named_postures
 from glovedb.rotations import quaternion_to_matrix
 from glovedb.search import (
@@ -66,7 +67,9 @@ class LookupBenchmark:
     cascade, ``same_top1`` says per query whether the timed index's top-1 is the
     exhaustive cascade's entry, ``index_build_s`` and ``index_mb`` are the time to
     open the timed index (file read, first-stage structures built) and the bytes of
-    its first-stage structure, ``distinct_images`` the number of images it scans.
+    its first-stage structure, ``scanned_images`` the number of images it scans
+    (of which a query scans ``probe_share`` in ``lists`` inverted lists when the first
+    stage is ``"lists"``; :mod:`glovedb.inverted_lists`).
     """
 
     entries: int
@@ -86,6 +89,8 @@ class LookupBenchmark:
     index_build_s: float = 0.0
     index_mb: float = 0.0
     scanned_images: int = 0
+    lists: int = 0
+    probe_share: float = 1.0
 
     def as_dict(self) -> dict[str, Any]:
         k = parse_cascade(self.cascade)[-1].k
@@ -115,6 +120,8 @@ class LookupBenchmark:
             "first_stage_over_read": round(first_median / read, 2) if read > 0 else None,
             "first_stage": self.first_stage,
             "scanned_images": self.scanned_images,
+            "lists": self.lists,
+            "probe_share": self.probe_share,
             "index_build_s": round(self.index_build_s, 3),
             "index_mb": round(self.index_mb, 1),
             "exhaustive_latency_ms_median": None
@@ -286,15 +293,28 @@ def run_lookup_benchmark(
             process_rss_mb=_resident_mb(),
             first_stage_mb=first_stage_mb,
             first_stage_read_ms=read_ms,
-            first_stage="distinct" if isinstance(scanned, DistinctTinyImages) else "scan",
+            first_stage=_first_stage_name(scanned),
             exhaustive_latency_ms=exhaustive_ms,
             same_top1=top1 == exhaustive_top1,
             index_build_s=build_s,
             index_mb=scanned.nbytes / 1e6,
-            scanned_images=scanned.images.num_entries
-            if isinstance(scanned, DistinctTinyImages)
-            else scanned.num_entries,
+            scanned_images=_scanned_images(scanned),
+            lists=scanned.num_lists if isinstance(scanned, InvertedLists) else 0,
+            probe_share=scanned.probe_share if isinstance(scanned, InvertedLists) else 1.0,
         )
+
+
+def _first_stage_name(stage: FirstStageImages) -> str:
+    if isinstance(stage, InvertedLists):
+        return "lists"
+    return "distinct" if isinstance(stage, DistinctTinyImages) else "scan"
+
+
+def _scanned_images(stage: FirstStageImages) -> int:
+    """Images the first stage holds: distinct ones, or one per entry."""
+    if isinstance(stage, InvertedLists):
+        return stage.images.num_images
+    return stage.num_images if isinstance(stage, DistinctTinyImages) else stage.num_entries
 
 
 def _timed_searches(

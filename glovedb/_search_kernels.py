@@ -47,6 +47,37 @@ def score_rows(
 
 
 @numba.njit(nogil=True, cache=True, fastmath=_FASTMATH)
+def score_ranges(
+    codes: NDArray[np.uint16],
+    glove_pixels: NDArray[np.uint16],
+    table: NDArray[np.float32],
+    starts: NDArray[np.int64],
+    stops: NDArray[np.int64],
+    errors: NDArray[np.float32],
+) -> None:
+    """Like :func:`score_rows` over the rows of each range ``starts[i]:stops[i]``, the
+    errors of all ranges written one after the other into ``errors`` (the few hundred
+    lists a query probes, in one call)."""
+    positions = codes.shape[1]
+    unrolled = positions - positions % 4
+    out = 0
+    for index in range(len(starts)):
+        for row in range(starts[index], stops[index]):
+            sum0 = sum1 = sum2 = sum3 = np.float32(0.0)
+            for position in range(0, unrolled, 4):
+                sum0 += table[position, codes[row, position]]
+                sum1 += table[position + 1, codes[row, position + 1]]
+                sum2 += table[position + 2, codes[row, position + 2]]
+                sum3 += table[position + 3, codes[row, position + 3]]
+            for position in range(unrolled, positions):
+                sum0 += table[position, codes[row, position]]
+            count = glove_pixels[row]
+            total = (sum0 + sum1) + (sum2 + sum3)
+            errors[out] = np.float32(np.inf) if count == 0 else total / np.float32(count)
+            out += 1
+
+
+@numba.njit(nogil=True, cache=True, fastmath=_FASTMATH)
 def score_label_rows(
     labels: NDArray[np.uint8],
     lookup: NDArray[np.float32],

@@ -132,6 +132,12 @@ def distinct_tiny_images(
     )
 
 
+def range_positions(starts: NDArray[np.int64], lengths: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The positions ``starts[i] .. starts[i] + lengths[i] - 1`` of every range, in order."""
+    first = np.cumsum(lengths) - lengths
+    return np.repeat(starts - first, lengths) + np.arange(int(lengths.sum()), dtype=np.int64)
+
+
 def distinct_image_count(images: ArrayLike) -> int:
     """Number of distinct images among ``(M, s, s) uint8`` label images, from their
     hashes alone (cheaper than :func:`distinct_tiny_images`; a hash collision, which

@@ -3,9 +3,11 @@
 :class:`DatabaseIndex` is the thin stateful edge around :mod:`glovedb.search`: it keeps
 the sizes that a cascade scans in full in memory, packed (32 bytes per entry at 8x8)
 or, when images repeat, as distinct images (:mod:`glovedb.distinct_images`: the same
-result from scanning each image once), reads the larger sizes' rows straight from the
-file (only the few candidates of the later stages), and turns a query's tiny images
-into the nearest entries and their interpolated posture and rotation.
+result from scanning each image once) or, when there are very many, as inverted lists
+(:mod:`glovedb.inverted_lists`: only the lists like the query are scanned), reads
+the larger sizes' rows straight from the file (only the few candidates of the later
+stages), and turns a query's tiny images into the nearest entries and their
+interpolated posture and rotation.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from glovedb.distinct_images import (
     distinct_image_count,
     distinct_tiny_images,
 )
+from glovedb.inverted_lists import InvertedLists, inverted_lists
 from glovedb.search import (
     CascadeStage,
     CoarseMaps,
@@ -52,12 +55,17 @@ DEFAULT_CASCADE = "8:2000,16:300,64:3"
 # The thesis' cascade (Figure 4.10), kept for comparison.
 THESIS_CASCADE = "16:500,64:3"
 
-FirstStage: TypeAlias = Literal["auto", "distinct", "scan"]
-FIRST_STAGES: tuple[FirstStage, ...] = ("auto", "distinct", "scan")
+FirstStage: TypeAlias = Literal["auto", "distinct", "scan", "lists"]
+FIRST_STAGES: tuple[FirstStage, ...] = ("auto", "distinct", "scan", "lists")
+FirstStageImages: TypeAlias = PackedTinyImages | DistinctTinyImages | InvertedLists
 _DISTINCT_AT_MOST = 0.75
 """``first_stage="auto"`` scans the distinct images when there are at most this many
 per entry. Both give the same result; with fewer repeats the grouping saves little
 scan time and costs 8 bytes per entry more than the packed images alone."""
+LISTS_AT_LEAST = 250_000
+"""``first_stage="auto"`` groups the images it would scan into inverted lists
+(:mod:`glovedb.inverted_lists`) when there are at least this many: below, a scan
+takes a few milliseconds at most and grouping is not worth its seconds."""
 
 
 def default_cascade(sizes: tuple[int, ...]) -> str:
@@ -110,11 +118,15 @@ class DatabaseIndex(Closing):
     tile_to : int, optional
         Benchmarks only: repeat the entries until there are this many, to measure
         speed beyond the size that was built.
-    first_stage : {"auto", "distinct", "scan"}
+    first_stage : {"auto", "distinct", "scan", "lists"}
         How the first stage scans: every entry's packed images (``"scan"``), each
         distinct image once (``"distinct"``, :mod:`glovedb.distinct_images`; same
-        result), or distinct images when they are at most 3/4 of the entries
-        (``"auto"``; tiled benchmarks always, natural1000's 722,888 of 756,000 not).
+        result), or only the lists of images like the query's (``"lists"``,
+        :mod:`glovedb.inverted_lists`; approximate, of the distinct images when they
+        are at most 3/4 of the entries, else of every entry's). ``"auto"``: distinct
+        images when they are at most 3/4 of the entries (tiled benchmarks always,
+        natural1000's 722,888 of 756,000 not), and lists when that leaves at least
+        :data:`LISTS_AT_LEAST` images to scan.
 
     Attributes
     ----------
@@ -149,7 +161,7 @@ class DatabaseIndex(Closing):
         self.resolutions = self._database.resolutions
         self.hand_length_m = float(self._database.settings["config"]["hand_length_m"])
         self._packed: dict[int, PackedTinyImages] = {}
-        self._first: dict[int, PackedTinyImages | DistinctTinyImages] = {}
+        self._first: dict[int, FirstStageImages] = {}
         self._rows: dict[int, _RowReader | NDArray[np.uint8]] = {}
         wanted = resident_sizes if resident_sizes is not None else self.resolutions[:1]
         for size in wanted:
@@ -177,7 +189,7 @@ class DatabaseIndex(Closing):
             self._packed[size] = self._pack(self._database.images(size))
         return self._packed[size]
 
-    def first_stage_images(self, size: int) -> PackedTinyImages | DistinctTinyImages:
+    def first_stage_images(self, size: int) -> FirstStageImages:
         """What a first stage at ``size`` scans (made on first use; see ``first_stage``;
         kept between runs for large databases, :mod:`glovedb.stage_cache`)."""
         if size in self._first:
@@ -195,20 +207,28 @@ class DatabaseIndex(Closing):
             self._packed[size] = stage
         return stage
 
-    def _make_first_stage(self, size: int) -> PackedTinyImages | DistinctTinyImages:
+    def _make_first_stage(self, size: int) -> FirstStageImages:
         """Decode the file's images of ``size`` and group or pack them."""
         images = self._database.images(size)
+        stage: PackedTinyImages | DistinctTinyImages
         # Every image of the file is shown by an entry, tiled or not.
         if self.first_stage == "distinct" or (
-            self.first_stage == "auto"
+            self.first_stage in ("auto", "lists")
             and distinct_image_count(images) <= _DISTINCT_AT_MOST * self.entries
         ):
             tiled = self.entries != self.base_entries
-            return distinct_tiny_images(
+            stage = distinct_tiny_images(
                 images,
                 image_of_entry=np.arange(self.entries) % self.base_entries if tiled else None,
             )
-        return self._packed[size] if size in self._packed else self._pack(images)
+        else:
+            stage = self._packed[size] if size in self._packed else self._pack(images)
+        scanned = stage.num_images if isinstance(stage, DistinctTinyImages) else stage.num_entries
+        if self.first_stage == "lists" or (
+            self.first_stage == "auto" and scanned >= LISTS_AT_LEAST
+        ):
+            return inverted_lists(stage)
+        return stage
 
     def _pack(self, images: NDArray[np.uint8]) -> PackedTinyImages:
         """Pack the file's images of one size, repeated or cut to ``entries``."""

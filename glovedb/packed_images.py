@@ -97,6 +97,16 @@ def pack_tiny_images(images: ArrayLike, *, group: int | None = None) -> PackedTi
     return PackedTinyImages(codes=codes, glove_pixels=glove_pixels, size=size, group=group)
 
 
+def unpack_tiny_images(packed: PackedTinyImages) -> NDArray[np.uint8]:
+    """The label images of :func:`pack_tiny_images`' layout, ``(N, s, s) uint8``."""
+    codes = packed.codes.astype(np.int64)
+    digits = np.empty((*codes.shape, packed.group), np.uint8)
+    for index in range(packed.group - 1, -1, -1):
+        digits[:, :, index] = codes % _NUM_LABELS
+        codes //= _NUM_LABELS
+    return digits.reshape(packed.num_entries, packed.size, packed.size)
+
+
 def code_table(maps: NDArray[np.float32], group: int) -> NDArray[np.float32]:
     """Summed chamfer distances of every code at every group position.
 

@@ -42,6 +42,12 @@ Distinct images
     distinct images only; :class:`glovedb.lookup.DatabaseIndex` uses it when images
     repeat (see :mod:`glovedb.distinct_images`).
 
+Inverted lists
+    Or an :class:`~glovedb.inverted_lists.InvertedLists`: the images grouped into
+    lists of similar images, of which a query scans the few whose mean distance to it
+    is smallest (:mod:`glovedb.inverted_lists`). Approximate: an entry in a list that
+    is not scanned is not found; scanning every list gives the full scan's result.
+
 Sources
     Each size in the ``database`` mapping is a :class:`PackedTinyImages` or, for the
     first stage only, a :class:`~glovedb.distinct_images.DistinctTinyImages` (resident;
@@ -74,7 +80,8 @@ from glovedb.chamfer import (
     chamfer_maps,
     check_labels,
 )
-from glovedb.distinct_images import DistinctTinyImages
+from glovedb.distinct_images import DistinctTinyImages, range_positions
+from glovedb.inverted_lists import InvertedLists, probed_lists
 from glovedb.packed_images import PackedTinyImages, code_table, pack_tiny_images
 from glovedb.rotations import weighted_rotation_average
 
@@ -96,7 +103,9 @@ class CascadeStage:
     k: int
 
 
-TinyImageSource: TypeAlias = PackedTinyImages | DistinctTinyImages | NDArray[np.uint8] | RowLoader
+TinyImageSource: TypeAlias = (
+    PackedTinyImages | DistinctTinyImages | InvertedLists | NDArray[np.uint8] | RowLoader
+)
 """The images of one size in ``cascade_search``'s ``database`` mapping."""
 
 
@@ -277,6 +286,8 @@ def cascade_search(
         if isinstance(source, DistinctTinyImages):  # the first stage (_num_entries)
             image_errors = _scan(maps, source.images, workers)
             ranked_ids, errors = _smallest_entries(source, image_errors, stage.k)
+        elif isinstance(source, InvertedLists):  # the first stage (_num_entries)
+            ranked_ids, errors = _scan_lists(maps, source, stage.k, workers)
         else:
             stage_errors = _scan(maps, _rows(source, ids, stage.size, num_entries), workers)
             keep = _smallest(stage_errors, stage.k)
@@ -426,34 +437,72 @@ def _smallest(errors: NDArray[np.float32], k: int) -> NDArray[np.int64]:
 
 
 def _smallest_entries(
-    distinct: DistinctTinyImages, image_errors: NDArray[np.float32], k: int
+    distinct: DistinctTinyImages,
+    image_errors: NDArray[np.float32],
+    k: int,
+    images: NDArray[np.int64] | None = None,
 ) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
     """The ``k`` entries with the smallest errors, ascending by (error, entry id), and
-    their errors, from the errors of the distinct images: what :func:`_smallest` gives
-    on the errors of all entries.
+    their errors, from the errors of the distinct images (of all, or of the scanned
+    ``images``, ascending, which hold at least ``k`` entries or all of them): what
+    :func:`_smallest` gives on the errors of their entries.
 
     The ``k`` best images hold at least ``k`` entries; those up to the one that
     completes ``k`` entries, and every image tied with it, are expanded to entries.
     """
-    k = min(k, distinct.num_entries)
+    offsets = distinct.offsets
+    scanned = np.arange(len(image_errors)) if images is None else images
+    k = min(k, distinct.num_entries)  # scanned images hold at least k entries
     if k == 0:
         return np.empty(0, np.int64), np.empty(0, np.float32)
-    offsets = distinct.offsets
     candidates = _smallest(image_errors, k)
-    covered = np.cumsum(offsets[candidates + 1] - offsets[candidates])
+    covered = np.cumsum(offsets[scanned[candidates] + 1] - offsets[scanned[candidates]])
     cut = image_errors[candidates[int(np.searchsorted(covered, k))]]
     if len(candidates) < len(image_errors) and image_errors[candidates[-1]] <= cut:
-        images = np.flatnonzero(image_errors <= cut)  # ties beyond the candidates
+        chosen = np.flatnonzero(image_errors <= cut)  # ties beyond the candidates
     else:
-        images = candidates[image_errors[candidates] <= cut]
-    starts = offsets[images]
-    lengths = offsets[images + 1] - starts
-    first_positions = np.cumsum(lengths) - lengths
-    positions = np.repeat(starts - first_positions, lengths) + np.arange(lengths.sum())
-    entry_ids = distinct.entry_ids[positions]
-    entry_errors = np.repeat(image_errors[images], lengths)
+        chosen = candidates[image_errors[candidates] <= cut]
+    starts = offsets[scanned[chosen]]
+    lengths = offsets[scanned[chosen] + 1] - starts
+    entry_ids = distinct.entry_ids[range_positions(starts, lengths)]
+    entry_errors = np.repeat(image_errors[chosen], lengths)
     order = np.lexsort((entry_ids, entry_errors))[:k]
     return entry_ids[order], entry_errors[order]
+
+
+def _scan_lists(
+    query_maps: NDArray[np.float32], lists: InvertedLists, k: int, workers: int | None
+) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+    """The ``k`` nearest entries among the lists a query probes, and their errors."""
+    workers = (os.cpu_count() or 1) if workers is None else workers
+    if workers < 1:
+        raise ValueError(f"workers: must be at least 1, got {workers}")
+    packed = lists.images.images
+    size = packed.size
+    maps = as_array("query_maps", query_maps, (NUM_CLASSES, size, size), np.float32)
+    probed = probed_lists(lists, maps, k)
+    starts = lists.list_offsets[probed]
+    stops = lists.list_offsets[probed + 1]
+    table = code_table(maps, packed.group)
+    lengths = stops - starts
+    ends = np.cumsum(lengths)
+    errors = np.empty(int(ends[-1]), np.float32)  # of the probed images, in order
+
+    def score(part: tuple[int, int]) -> None:
+        first, last = part
+        written = errors[ends[first] - lengths[first] : ends[last - 1]]
+        _search_kernels.score_ranges(
+            packed.codes, packed.glove_pixels, table, starts[first:last], stops[first:last], written
+        )
+
+    # ``workers`` parts of about equal rows.
+    cuts = np.searchsorted(ends, ends[-1] * np.arange(1, workers) / workers).tolist()
+    parts = [(a, b) for a, b in itertools.pairwise([0, *cuts, len(starts)]) if b > a]
+    if len(parts) == 1:
+        score(parts[0])
+    else:
+        list(_thread_pool(workers).map(score, parts))
+    return _smallest_entries(lists.images, errors, k, range_positions(starts, lengths))
 
 
 def _query_image(query_images: Mapping[int, ArrayLike], size: int) -> NDArray[np.uint8]:
@@ -470,15 +519,18 @@ def _num_entries(database: Mapping[int, TinyImageSource], first_size: int) -> in
     """Entries in the database; checks that the first stage's images are in memory
     and that distinct images (which have no rows by entry) serve only that stage."""
     for size, source in database.items():
-        if isinstance(source, DistinctTinyImages):
+        if isinstance(source, DistinctTinyImages | InvertedLists):
+            distinct = source if isinstance(source, DistinctTinyImages) else source.images
+            images = distinct.images
             if size != first_size:
-                raise ValueError(f"database[{size}]: distinct images serve the first stage only")
-            if source.images.size != size:
-                raise ValueError(f"database[{size}]: holds {source.images.size}x"
-                                 f"{source.images.size} images")  # fmt: skip
+                raise ValueError(
+                    f"database[{size}]: distinct images and lists serve the first stage only"
+                )
+            if images.size != size:
+                raise ValueError(f"database[{size}]: holds {images.size}x{images.size} images")
     counts = {
         size: source.num_entries
-        if isinstance(source, PackedTinyImages | DistinctTinyImages)
+        if isinstance(source, PackedTinyImages | DistinctTinyImages | InvertedLists)
         else len(source)
         for size, source in database.items()
         if not callable(source)
@@ -499,7 +551,7 @@ def _rows(
     """The images of ``ids`` (ascending), or of all entries when ``ids`` is None:
     packed, or as ``(M, s * s)`` labels when loaded or sliced for a few ids."""
     name = f"database[{size}]"
-    assert not isinstance(source, DistinctTinyImages)  # _num_entries: first stage only
+    assert not isinstance(source, DistinctTinyImages | InvertedLists)  # first stage only
     if isinstance(source, PackedTinyImages):
         if source.size != size:
             raise ValueError(f"{name}: holds {source.size}x{source.size} images")

@@ -33,9 +33,10 @@ from numpy.typing import NDArray
 from glovedb._files import write_atomically
 from glovedb.cache import cache_folder, source_digest
 from glovedb.distinct_images import DistinctTinyImages
+from glovedb.inverted_lists import InvertedLists
 from glovedb.packed_images import PackedTinyImages
 
-FirstStageImages = PackedTinyImages | DistinctTinyImages
+FirstStageImages = PackedTinyImages | DistinctTinyImages | InvertedLists
 
 CACHE_AT_LEAST = 100_000
 """Databases with fewer searchable entries make their first stage in well under 0.1 s
@@ -44,6 +45,7 @@ and are not cached."""
 # What decides the stage's arrays: these modules' source is part of the cache key.
 _SOURCES = (
     "stage_cache", "lookup", "database", "_row_codec", "packed_images", "distinct_images",
+    "inverted_lists",
 )  # fmt: skip
 
 
@@ -106,8 +108,13 @@ def load_first_stage(path: str | os.PathLike[str], *, entries: int) -> FirstStag
             )
             if "entry_ids" not in stored:
                 return packed if packed.num_entries == entries else None
-            distinct = DistinctTinyImages(packed, stored["entry_ids"], stored["offsets"])
-            return distinct if distinct.num_entries == entries else None
+            stage: FirstStageImages
+            stage = DistinctTinyImages(packed, stored["entry_ids"], stored["offsets"])
+            if "list_offsets" in stored:
+                stage = InvertedLists(
+                    stage, stored["list_offsets"], stored["list_means"], stored["list_variances"]
+                )
+            return stage if stage.num_entries == entries else None
     except (OSError, ValueError, TypeError, KeyError, EOFError, zipfile.BadZipFile):
         return None
 
@@ -115,8 +122,16 @@ def load_first_stage(path: str | os.PathLike[str], *, entries: int) -> FirstStag
 def save_first_stage(path: str | os.PathLike[str], stage: FirstStageImages) -> None:
     """Keep ``stage`` at ``path`` (whole or not at all; nothing is kept when the folder
     cannot be written)."""
+    arrays: dict[str, Any] = {}
+    if isinstance(stage, InvertedLists):
+        arrays |= {
+            "list_offsets": stage.list_offsets,
+            "list_means": stage.list_means,
+            "list_variances": stage.list_variances,
+        }
+        stage = stage.images
     packed = stage.images if isinstance(stage, DistinctTinyImages) else stage
-    arrays: dict[str, Any] = {
+    arrays |= {
         "codes": packed.codes,
         "glove_pixels": packed.glove_pixels,
         "size": np.array(packed.size),

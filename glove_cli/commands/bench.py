@@ -33,10 +33,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     lookup.add_argument(
         "--first-stage",
-        choices=("auto", "distinct", "scan"),  # glovedb.lookup.FIRST_STAGES, not imported
+        choices=("auto", "distinct", "scan", "lists"),  # glovedb.lookup.FIRST_STAGES
         default="auto",
-        help="scan each distinct image once or every entry (default: auto, distinct "
-        "images when they repeat; the same result)",
+        help="scan each distinct image once, every entry (the same result), or only the "
+        "lists of images like the query's (approximate) (default: auto, distinct images "
+        "when they repeat, lists when at least 250,000 images are left to scan)",
     )
     lookup.add_argument("--json", action="store_true", help="print one JSON object")
     lookup.set_defaults(run=run_lookup)
@@ -96,8 +97,10 @@ def run_lookup(args: argparse.Namespace) -> int:
     latency = figures["latency_ms"]
     print(f"{args.db}: {figures['entries']:,} entries ({figures['base_entries']:,} in the file)")
     print(f"  cascade            {figures['cascade']}")
-    print(f"  first stage        {figures['first_stage']}: {figures['scanned_images']:,} images, "
-          f"{figures['index_mb']:.1f} MB, index opened and built in "
+    lists = (f" in {figures['lists']:,} lists, {100 * figures['probe_share']:.0f} % scanned per "
+             "query" if figures["first_stage"] == "lists" else "")  # fmt: skip
+    print(f"  first stage        {figures['first_stage']}: {figures['scanned_images']:,} images"
+          f"{lists}, {figures['index_mb']:.1f} MB, index opened and built in "
           f"{figures['index_build_s']:.2f} s")  # fmt: skip
     print(f"  latency            median {latency['median']:.2f} ms, p95 {latency['p95']:.2f} ms")
     print(f"  per stage (median) {', '.join(f'{t:.2f}' for t in figures['stage_ms_median'])} ms")

@@ -67,3 +67,15 @@ def test_bench_lookup_refuses_no_entries(small_database, capsys):
     argv = ["bench", "lookup", "--db", str(small_database), "--entries", "0"]
     assert main(argv) == 2
     assert "--entries must be at least 1" in capsys.readouterr().err
+
+
+def test_bench_lookup_reports_a_first_stage_of_lists(small_database, capsys):
+    from glove_cli.main import main
+
+    argv = ["bench", "lookup", "--db", str(small_database), "--cascade", "8:20,32:3",
+            "--queries", "3", "--first-stage", "lists", "--json"]  # fmt: skip
+    assert main(argv) == 0
+    figures = json.loads(capsys.readouterr().out)
+    assert figures["first_stage"] == "lists" and figures["scanned_images"] == 72
+    assert 1 < figures["lists"] < 72 and figures["probe_share"] == 0.12
+    assert 0.0 <= figures["recall_top1_vs_exhaustive"] <= 1.0

@@ -122,3 +122,35 @@ def test_decoded_rows_of_a_large_database_are_kept_in_the_cache(
     with DatabaseIndex(small_database) as index:
         for size, rows in first.items():
             np.testing.assert_array_equal(index.rows(size, ids), rows)
+
+
+def test_many_images_are_grouped_into_lists_and_kept_between_runs(
+    small_database, tmp_path, monkeypatch
+):
+    import glovedb.lookup
+    from glovedb.inverted_lists import InvertedLists
+
+    monkeypatch.setenv("GLOVE_CACHE", str(tmp_path))
+    monkeypatch.setattr(glovedb.lookup, "CACHE_AT_LEAST", 1)  # the small file counts as large
+    monkeypatch.setattr(glovedb.lookup, "LISTS_AT_LEAST", 50)  # and its 72 images as many
+    with DatabaseIndex(small_database) as index:
+        made = index.first_stage_images(8)
+        query = {size: index.rows(size, np.array([40]))[0] for size in index.resolutions}
+        expected = index.search(query, "8:40,16:10,32:3")
+    assert isinstance(made, InvertedLists) and made.num_entries == 72
+    assert expected.entry_ids[0] == 40 and expected.errors[0] == 0
+
+    def refuse(self, size):
+        raise AssertionError("made again instead of loaded")
+
+    monkeypatch.setattr(DatabaseIndex, "_make_first_stage", refuse)
+    with DatabaseIndex(small_database) as index:
+        loaded = index.first_stage_images(8)
+        found = index.search(query, "8:40,16:10,32:3")
+    assert isinstance(loaded, InvertedLists)
+    for name in ("list_offsets", "list_means", "list_variances"):
+        np.testing.assert_array_equal(getattr(loaded, name), getattr(made, name))
+    np.testing.assert_array_equal(loaded.images.entry_ids, made.images.entry_ids)
+    np.testing.assert_array_equal(loaded.images.images.codes, made.images.images.codes)
+    np.testing.assert_array_equal(found.entry_ids, expected.entry_ids)
+    np.testing.assert_array_equal(found.errors, expected.errors)

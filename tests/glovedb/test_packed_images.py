@@ -35,3 +35,13 @@ def test_packed_codes_index_the_table() -> None:
     found = table[np.arange(16), packed.codes].sum(axis=1)
     np.testing.assert_allclose(found, expected, rtol=1e-5)
     assert packed.nbytes == 20 * 16 * 2 + 20 * 2
+
+
+@pytest.mark.parametrize(("size", "group"), [(4, 1), (8, 2), (8, 4), (16, 2)])
+def test_unpacking_gives_back_the_packed_labels(size: int, group: int) -> None:
+    from glovedb.packed_images import unpack_tiny_images
+
+    images = np.random.default_rng(size + group).integers(0, 11, (30, size, size), np.uint8)
+    unpacked = unpack_tiny_images(pack_tiny_images(images, group=group))
+    assert unpacked.dtype == np.uint8
+    np.testing.assert_array_equal(unpacked, images)

@@ -1,0 +1,62 @@
+"""Compiled loops of :mod:`glovedb.inverted_lists`, which documents and checks.
+
+The kernels assume checked, C-contiguous inputs of the documented dtypes.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+
+@numba.njit(nogil=True, cache=True)
+def project_rows(
+    labels: NDArray[np.uint8], weights: NDArray[np.float32], out: NDArray[np.float32]
+) -> None:
+    """``out[m] = sum_p weights[labels[m, p] - 1, p] / n_m`` over the glove pixels.
+
+    ``labels (M, P) uint8`` are flattened label images (0 is background), ``weights
+    (10, P, F) float32`` a linear map of the one-hot labels, ``out (M, F) float32``;
+    ``n_m`` is row ``m``'s glove pixel count (rows without any get 0).
+    """
+    features = weights.shape[2]
+    for row in range(labels.shape[0]):
+        total = np.zeros(features, np.float32)
+        count = 0
+        for pixel in range(labels.shape[1]):
+            label = labels[row, pixel]
+            if label > 0:
+                count += 1
+                total += weights[label - 1, pixel]
+        out[row] = total / np.float32(max(count, 1))
+
+
+@numba.njit(nogil=True, cache=True)
+def add_list_sums(
+    labels: NDArray[np.uint8],
+    list_of_row: NDArray[np.int64],
+    sums: NDArray[np.float64],
+    squares: NDArray[np.float64],
+) -> None:
+    """``sums[list_of_row[m], (label - 1) * P + p] += 1 / n_m`` for every glove pixel,
+    and ``squares`` the same with ``1 / n_m ** 2``.
+
+    ``labels (M, P) uint8``, ``list_of_row (M,) int64``, ``sums, squares (L, 10 * P)
+    float64``.
+    """
+    pixels = labels.shape[1]
+    for row in range(labels.shape[0]):
+        count = 0
+        for pixel in range(pixels):
+            count += labels[row, pixel] > 0
+        if count == 0:
+            continue
+        share = 1.0 / count
+        target = sums[list_of_row[row]]
+        squared = squares[list_of_row[row]]
+        for pixel in range(pixels):
+            label = labels[row, pixel]
+            if label > 0:
+                target[(label - 1) * pixels + pixel] += share
+                squared[(label - 1) * pixels + pixel] += share * share

@@ -1,0 +1,131 @@
+"""Inverted lists: every image in one list, each list's exact mean distance, probing,
+and a search that scans every list equal to the exhaustive one."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from glovedb.chamfer import chamfer_maps
+from glovedb.database import GloveDatabase
+from glovedb.distinct_images import distinct_tiny_images
+from glovedb.inverted_lists import InvertedLists, inverted_lists, probed_lists
+from glovedb.search import cascade_search, pack_tiny_images, tiny_image_distances
+
+pytestmark = pytest.mark.gl  # builds a database with the renderer
+
+
+@pytest.fixture(scope="module")
+def images(open_pinch_power_database) -> dict[int, np.ndarray]:
+    """DB_open+pinch+power's tiny images: 2,268 entries of rendered hands."""
+    with GloveDatabase(open_pinch_power_database) as database:
+        return {size: database.images(size) for size in database.resolutions}
+
+
+@pytest.fixture(scope="module")
+def lists(images) -> InvertedLists:
+    return inverted_lists(pack_tiny_images(images[8]))
+
+
+def query_of(images: dict[int, np.ndarray], entry: int) -> dict[int, np.ndarray]:
+    """An entry's images with every fourth glove pixel dropped: near it, not equal."""
+    query = {}
+    for size, stack in images.items():
+        image = stack[entry].copy()
+        glove = np.flatnonzero(image)
+        image.flat[glove[::4]] = 0
+        query[size] = image
+    return query
+
+
+def test_every_image_is_in_one_list_with_its_entries(images, lists):
+    assert lists.num_entries == len(images[8]) and lists.num_lists > 1
+    np.testing.assert_array_equal(np.sort(lists.images.entry_ids), np.arange(len(images[8])))
+    # Image i of the lists is the image of the entry it holds.
+    shown = images[8][lists.images.entry_ids]
+    np.testing.assert_array_equal(pack_tiny_images(shown).codes, lists.images.images.codes)
+    assert np.all(np.diff(lists.list_offsets) >= 1) and lists.nbytes > 0
+
+
+def test_a_lists_mean_is_its_images_mean_distance(images, lists):
+    maps = chamfer_maps(images[8][100])
+    errors = tiny_image_distances(maps, lists.images.images)
+    means = lists.list_means @ maps.reshape(-1)
+    offsets = lists.list_offsets
+    for index in (0, lists.num_lists // 2, lists.num_lists - 1):
+        members = errors[offsets[index] : offsets[index + 1]]
+        assert means[index] == pytest.approx(members.mean(), rel=1e-4)
+    one = lists.images.images.codes[offsets[1] : offsets[2]]
+    labels = images[8][lists.images.entry_ids[offsets[1] : offsets[2]]]
+    u = np.stack([(labels == c).reshape(len(labels), -1) for c in range(1, 11)], axis=1)
+    u = u.reshape(len(labels), -1) / np.count_nonzero(labels.reshape(len(one), -1), axis=1)[:, None]
+    np.testing.assert_allclose(lists.list_variances[1], u.var(axis=0), atol=1e-6)
+
+
+def test_probing_covers_the_share_and_the_stage_k(images, lists):
+    maps = chamfer_maps(images[8][7])
+    for share, k in ((0.05, 10), (0.05, 1500), (0.3, 10)):
+        probed = probed_lists(dataclasses.replace(lists, probe_share=share), maps, k)
+        assert np.all(np.diff(probed) > 0)
+        held = np.sum(lists.list_offsets[probed + 1] - lists.list_offsets[probed])
+        assert held >= share * len(images[8]) and held >= k
+        assert held < len(images[8])  # not everything
+    everything = probed_lists(lists, maps, 10**6)
+    np.testing.assert_array_equal(everything, np.arange(lists.num_lists))
+
+
+@pytest.mark.parametrize("repeats", [False, True])
+def test_scanning_every_list_is_the_exhaustive_scan(images, repeats):
+    entries = np.arange(len(images[8]))
+    if repeats:  # as a tiled benchmark: lists of distinct images, several entries each
+        entries = np.arange(3 * len(images[8])) % len(images[8])
+    stage = distinct_tiny_images(images[8], image_of_entry=entries)
+    every = dataclasses.replace(inverted_lists(stage), probe_share=1.0)
+    packed = pack_tiny_images(images[8][entries])
+    for entry in (0, 500, 2000):
+        query = query_of(images, entry)
+        full = cascade_search(query, {8: packed}, "8:50")
+        listed = cascade_search(query, {8: every}, "8:50")
+        np.testing.assert_array_equal(listed.entry_ids, full.entry_ids)
+        np.testing.assert_array_equal(listed.errors, full.errors)
+
+
+def damaged(images: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Images with a tenth of their glove pixels dropped and 3 % given another colour."""
+    out = images.copy()
+    glove = out > 0
+    out[glove & (rng.random(out.shape) < 0.1)] = 0
+    recolour = glove & (rng.random(out.shape) < 0.03)
+    out[recolour] = rng.integers(1, 11, int(recolour.sum()))
+    return out
+
+
+def test_the_default_share_finds_the_exhaustive_nearest_in_a_dense_database(images):
+    # Lists serve large databases, where every image has close neighbours: 8 damaged
+    # copies of each of DB_open+pinch+power's images stand in for one.
+    rng = np.random.default_rng(5)
+    dense = damaged(np.repeat(images[8], 8, axis=0), rng)
+    packed = pack_tiny_images(dense)
+    lists = inverted_lists(packed)
+    queries = damaged(images[8][::50], rng)
+    same = 0
+    for query in queries:
+        full = cascade_search({8: query}, {8: packed}, "8:20")
+        found = cascade_search({8: query}, {8: lists}, "8:20")
+        same += found.entry_ids[0] == full.entry_ids[0]
+        assert found.errors[0] >= full.errors[0]  # never better than the exhaustive scan
+    assert same >= 0.95 * len(queries)
+
+
+def test_lists_serve_the_first_stage_only_and_check_their_arrays(images, lists):
+    query = query_of(images, 3)
+    with pytest.raises(ValueError, match="first stage only"):
+        cascade_search(query, {8: pack_tiny_images(images[8]), 16: lists}, "8:20,16:3")
+    with pytest.raises(ValueError, match="probe_share"):
+        dataclasses.replace(lists, probe_share=0.0)
+    beyond = lists.list_offsets.copy()
+    beyond[-1] += 1
+    with pytest.raises(ValueError, match="list_offsets"):
+        dataclasses.replace(lists, list_offsets=beyond)
