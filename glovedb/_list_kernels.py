@@ -60,3 +60,26 @@ def add_list_sums(
             if label > 0:
                 target[(label - 1) * pixels + pixel] += share
                 squared[(label - 1) * pixels + pixel] += share * share
+
+
+@numba.njit(nogil=True, cache=True, fastmath={"reassoc", "contract"})
+def list_distances(
+    support_offsets: NDArray[np.int64],
+    support: NDArray[np.uint16],
+    means: NDArray[np.float32],
+    variances: NDArray[np.float32],
+    maps: NDArray[np.float32],
+    mean: NDArray[np.float32],
+    spread: NDArray[np.float32],
+) -> None:
+    """``mean[l] = sum means[j] * maps[support[j]]`` and ``spread[l] = sqrt(sum
+    variances[j] * maps[support[j]] ** 2)`` over list ``l``'s support ``j``."""
+    for index in range(len(support_offsets) - 1):
+        total = np.float32(0.0)
+        squared = np.float32(0.0)
+        for j in range(support_offsets[index], support_offsets[index + 1]):
+            value = maps[support[j]]
+            total += means[j] * value
+            squared += variances[j] * value * value
+        mean[index] = total
+        spread[index] = np.sqrt(squared)

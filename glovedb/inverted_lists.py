@@ -60,9 +60,18 @@ _PCA_SAMPLE = 20_000
 _CHUNK = 65_536
 
 
+LIST_ARRAYS = ("list_offsets", "support_offsets", "support", "means", "variances")
+"""The array fields of :class:`InvertedLists` besides its images (what a cache stores)."""
+
+
 @dataclass(frozen=True)
 class InvertedLists:
     """A first stage's images grouped into lists of similar images.
+
+    Each list's mean and variance of the normalised one-hot labels ``u`` (module
+    docstring) are stored sparsely, for the components ``c * s * s + p`` (class ``c``,
+    pixel ``p``) that some image of the list has (about a quarter of them): the
+    support of list ``l`` is ``support[support_offsets[l]:support_offsets[l + 1]]``.
 
     Attributes
     ----------
@@ -71,35 +80,43 @@ class InvertedLists:
         repeat), stored list by list.
     list_offsets : (L + 1,) int64
         List ``l`` holds images ``list_offsets[l]:list_offsets[l + 1]``.
-    list_means : (L, 10 * s * s) float32
-        Mean normalised one-hot labels ``u`` of each list's images (module docstring):
-        ``list_means @ maps.ravel()`` is each list's mean distance to a query.
-    list_variances : (L, 10 * s * s) float32
-        Variance of each component of ``u`` over the list's images.
+    support_offsets : (L + 1,) int64
+        Where each list's support starts in ``support``.
+    support : (S,) uint16
+        Components of ``u`` with a non-zero mean, ascending within each list.
+    means, variances : (S,) float32
+        Mean and variance of those components over the list's images.
     probe_share : float
         Share of the images a query scans, in (0, 1].
     """
 
     images: DistinctTinyImages
     list_offsets: NDArray[np.int64]
-    list_means: NDArray[np.float32]
-    list_variances: NDArray[np.float32]
+    support_offsets: NDArray[np.int64]
+    support: NDArray[np.uint16]
+    means: NDArray[np.float32]
+    variances: NDArray[np.float32]
     probe_share: float = PROBE_SHARE
 
     def __post_init__(self) -> None:
-        size = self.images.images.size
+        components = NUM_CLASSES * self.images.images.size**2
         offsets = as_array("list_offsets", self.list_offsets, (None,), np.int64)
-        shape = (len(offsets) - 1, NUM_CLASSES * size * size)
-        as_array("list_means", self.list_means, shape)
-        as_array("list_variances", self.list_variances, shape)
-        if offsets.dtype != np.int64 or {self.list_means.dtype, self.list_variances.dtype} != {
-            np.dtype(np.float32)
-        }:
-            raise TypeError("list_offsets: expected int64; list_means, list_variances: float32")
+        support = as_array("support_offsets", self.support_offsets, (len(offsets),), np.int64)
+        as_array("support", self.support, (None,), np.uint16)
+        as_array("means", self.means, (len(self.support),), np.float32)
+        as_array("variances", self.variances, (len(self.support),), np.float32)
+        dtypes = (offsets.dtype, support.dtype, self.support.dtype, self.means.dtype,
+                  self.variances.dtype)  # fmt: skip
+        if dtypes != (np.int64, np.int64, np.uint16, np.float32, np.float32):
+            raise TypeError("offsets: expected int64, support uint16, moments float32")
         if len(offsets) < 2 or offsets[0] != 0 or offsets[-1] != self.images.num_images:
             raise ValueError("list_offsets: must run from 0 to the number of images")
         if np.any(np.diff(offsets) < 1):
             raise ValueError("list_offsets: every list needs at least one image")
+        if support[0] != 0 or support[-1] != len(self.support) or np.any(np.diff(support) < 0):
+            raise ValueError("support_offsets: must rise from 0 to the support's length")
+        if len(self.support) and int(self.support.max()) >= components:
+            raise ValueError(f"support: components must be below {components}")
         if not 0 < self.probe_share <= 1:
             raise ValueError(f"probe_share: expected a share in (0, 1], got {self.probe_share}")
 
@@ -115,9 +132,8 @@ class InvertedLists:
 
     @property
     def nbytes(self) -> int:
-        """Bytes held: the images and their entries, the lists' offsets and moments."""
-        lists = self.list_offsets.nbytes + self.list_means.nbytes + self.list_variances.nbytes
-        return self.images.nbytes + lists
+        """Bytes held: the images and their entries, the lists and their moments."""
+        return self.images.nbytes + sum(getattr(self, name).nbytes for name in LIST_ARRAYS)
 
 
 def inverted_lists(
@@ -167,13 +183,43 @@ def inverted_lists(
     list_offsets = np.concatenate([[0], np.cumsum(counts[counts > 0])]).astype(np.int64)
     grouped = _reordered(distinct, order)
     means, variances = _list_moments(grouped.images, list_offsets)
+    present = means > 0
     return InvertedLists(
         images=grouped,
         list_offsets=list_offsets,
-        list_means=means,
-        list_variances=variances,
+        support_offsets=np.concatenate([[0], np.cumsum(present.sum(axis=1))]).astype(np.int64),
+        support=np.nonzero(present)[1].astype(np.uint16),
+        means=means[present],
+        variances=variances[present],
         probe_share=probe_share,
     )
+
+
+def list_distances(
+    lists: InvertedLists, maps: NDArray[np.float32]
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Each list's mean distance to a query and its spread.
+
+    Parameters
+    ----------
+    lists : InvertedLists
+    maps : (10, s, s) float32
+        The query's chamfer maps at the lists' size (checked by the caller).
+
+    Returns
+    -------
+    mean, spread : (L,) float32
+        Mean of the list's images' distances ``m(D, Q)`` (exact), and the standard
+        deviation they would have if the components of ``u`` varied independently,
+        pixels.
+    """
+    mean = np.empty(lists.num_lists, np.float32)
+    spread = np.empty(lists.num_lists, np.float32)
+    _list_kernels.list_distances(
+        lists.support_offsets, lists.support, lists.means, lists.variances,
+        np.ascontiguousarray(maps, dtype=np.float32).reshape(-1), mean, spread,
+    )  # fmt: skip
+    return mean, spread
 
 
 def probed_lists(
@@ -197,10 +243,8 @@ def probed_lists(
     (P,) int64
         List indices, ascending.
     """
-    flat = maps.reshape(-1)
-    spread = np.sqrt(lists.list_variances @ (flat * flat))
-    scores = lists.list_means @ flat - _SPREAD_WEIGHT * spread
-    ranked = np.argsort(scores, kind="stable")
+    mean, spread = list_distances(lists, maps)
+    ranked = np.argsort(mean - _SPREAD_WEIGHT * spread, kind="stable")
     bounds = lists.list_offsets
     images = np.cumsum(bounds[ranked + 1] - bounds[ranked])
     entry_offsets = lists.images.offsets[bounds]

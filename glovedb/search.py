@@ -417,8 +417,11 @@ def _thread_pool(workers: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(workers, thread_name_prefix="glovedb-scan")
 
 
-def _smallest(errors: NDArray[np.float32], k: int) -> NDArray[np.int64]:
-    """Indices of the ``k`` smallest errors, ascending by (error, index).
+def _smallest(
+    errors: NDArray[np.float32], k: int, ids: NDArray[np.int64] | None = None
+) -> NDArray[np.int64]:
+    """Indices of the ``k`` smallest errors, ascending by (error, index), or by
+    (error, ``ids[index]``) when ``ids`` are given.
 
     A strided sample's quantile, a little above ``k / N``, bounds the candidates so
     that only a few thousand are sorted; if it is too tight, all are.
@@ -433,7 +436,7 @@ def _smallest(errors: NDArray[np.float32], k: int) -> NDArray[np.int64]:
     rows = np.flatnonzero(errors <= threshold)
     if len(rows) < k:
         rows = np.arange(len(errors))
-    return rows[np.lexsort((rows, errors[rows]))[:k]]
+    return rows[np.lexsort((rows if ids is None else ids[rows], errors[rows]))[:k]]
 
 
 def _smallest_entries(
@@ -455,6 +458,10 @@ def _smallest_entries(
     k = min(k, distinct.num_entries)  # scanned images hold at least k entries
     if k == 0:
         return np.empty(0, np.int64), np.empty(0, np.float32)
+    if distinct.num_entries == distinct.num_images:  # one entry per image
+        entry_ids = distinct.entry_ids[scanned]
+        keep = _smallest(image_errors, k, entry_ids)
+        return entry_ids[keep], image_errors[keep]
     candidates = _smallest(image_errors, k)
     covered = np.cumsum(offsets[scanned[candidates] + 1] - offsets[scanned[candidates]])
     cut = image_errors[candidates[int(np.searchsorted(covered, k))]]

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from glovedb._files import write_atomically
 from glovedb.cache import cache_folder, source_digest
 from glovedb.distinct_images import DistinctTinyImages
-from glovedb.inverted_lists import InvertedLists
+from glovedb.inverted_lists import LIST_ARRAYS, InvertedLists
 from glovedb.packed_images import PackedTinyImages
 
 FirstStageImages = PackedTinyImages | DistinctTinyImages | InvertedLists
@@ -45,7 +45,7 @@ and are not cached."""
 # What decides the stage's arrays: these modules' source is part of the cache key.
 _SOURCES = (
     "stage_cache", "lookup", "database", "_row_codec", "packed_images", "distinct_images",
-    "inverted_lists",
+    "inverted_lists", "_list_kernels",
 )  # fmt: skip
 
 
@@ -111,9 +111,7 @@ def load_first_stage(path: str | os.PathLike[str], *, entries: int) -> FirstStag
             stage: FirstStageImages
             stage = DistinctTinyImages(packed, stored["entry_ids"], stored["offsets"])
             if "list_offsets" in stored:
-                stage = InvertedLists(
-                    stage, stored["list_offsets"], stored["list_means"], stored["list_variances"]
-                )
+                stage = InvertedLists(stage, *(stored[name] for name in LIST_ARRAYS))
             return stage if stage.num_entries == entries else None
     except (OSError, ValueError, TypeError, KeyError, EOFError, zipfile.BadZipFile):
         return None
@@ -124,11 +122,7 @@ def save_first_stage(path: str | os.PathLike[str], stage: FirstStageImages) -> N
     cannot be written)."""
     arrays: dict[str, Any] = {}
     if isinstance(stage, InvertedLists):
-        arrays |= {
-            "list_offsets": stage.list_offsets,
-            "list_means": stage.list_means,
-            "list_variances": stage.list_variances,
-        }
+        arrays |= {name: getattr(stage, name) for name in LIST_ARRAYS}
         stage = stage.images
     packed = stage.images if isinstance(stage, DistinctTinyImages) else stage
     arrays |= {

@@ -11,7 +11,12 @@ import pytest
 from glovedb.chamfer import chamfer_maps
 from glovedb.database import GloveDatabase
 from glovedb.distinct_images import distinct_tiny_images
-from glovedb.inverted_lists import InvertedLists, inverted_lists, probed_lists
+from glovedb.inverted_lists import (
+    InvertedLists,
+    inverted_lists,
+    list_distances,
+    probed_lists,
+)
 from glovedb.search import cascade_search, pack_tiny_images, tiny_image_distances
 
 pytestmark = pytest.mark.gl  # builds a database with the renderer
@@ -52,16 +57,17 @@ def test_every_image_is_in_one_list_with_its_entries(images, lists):
 def test_a_lists_mean_is_its_images_mean_distance(images, lists):
     maps = chamfer_maps(images[8][100])
     errors = tiny_image_distances(maps, lists.images.images)
-    means = lists.list_means @ maps.reshape(-1)
+    mean, spread = list_distances(lists, maps)
     offsets = lists.list_offsets
-    for index in (0, lists.num_lists // 2, lists.num_lists - 1):
+    for index in (0, 1, lists.num_lists // 2, lists.num_lists - 1):
         members = errors[offsets[index] : offsets[index + 1]]
-        assert means[index] == pytest.approx(members.mean(), rel=1e-4)
-    one = lists.images.images.codes[offsets[1] : offsets[2]]
-    labels = images[8][lists.images.entry_ids[offsets[1] : offsets[2]]]
-    u = np.stack([(labels == c).reshape(len(labels), -1) for c in range(1, 11)], axis=1)
-    u = u.reshape(len(labels), -1) / np.count_nonzero(labels.reshape(len(one), -1), axis=1)[:, None]
-    np.testing.assert_allclose(lists.list_variances[1], u.var(axis=0), atol=1e-6)
+        assert mean[index] == pytest.approx(members.mean(), rel=1e-4)
+        # The spread: the components' variances, as if they varied independently.
+        labels = images[8][lists.images.entry_ids[offsets[index] : offsets[index + 1]]]
+        u = np.stack([labels == c for c in range(1, 11)], axis=1).reshape(len(labels), -1)
+        u = u / np.count_nonzero(labels.reshape(len(labels), -1), axis=1)[:, None]
+        expected = np.sqrt(u.var(axis=0) @ maps.reshape(-1) ** 2)
+        assert spread[index] == pytest.approx(expected, rel=1e-3, abs=1e-6)
 
 
 def test_probing_covers_the_share_and_the_stage_k(images, lists):

@@ -128,7 +128,7 @@ def test_many_images_are_grouped_into_lists_and_kept_between_runs(
     small_database, tmp_path, monkeypatch
 ):
     import glovedb.lookup
-    from glovedb.inverted_lists import InvertedLists
+    from glovedb.inverted_lists import LIST_ARRAYS, InvertedLists
 
     monkeypatch.setenv("GLOVE_CACHE", str(tmp_path))
     monkeypatch.setattr(glovedb.lookup, "CACHE_AT_LEAST", 1)  # the small file counts as large
@@ -148,7 +148,7 @@ def test_many_images_are_grouped_into_lists_and_kept_between_runs(
         loaded = index.first_stage_images(8)
         found = index.search(query, "8:40,16:10,32:3")
     assert isinstance(loaded, InvertedLists)
-    for name in ("list_offsets", "list_means", "list_variances"):
+    for name in LIST_ARRAYS:
         np.testing.assert_array_equal(getattr(loaded, name), getattr(made, name))
     np.testing.assert_array_equal(loaded.images.entry_ids, made.images.entry_ids)
     np.testing.assert_array_equal(loaded.images.images.codes, made.images.images.codes)
