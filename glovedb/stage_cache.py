@@ -22,6 +22,7 @@ not kept. Deleting the folder is always safe.
 from __future__ import annotations
 
 import hashlib
+import mmap
 import os
 import zipfile
 from pathlib import Path
@@ -145,16 +146,36 @@ def save_first_stage(path: str | os.PathLike[str], stage: FirstStageImages) -> N
 def load_rows(
     path: str | os.PathLike[str], *, shape: tuple[int, int, int]
 ) -> NDArray[np.uint8] | None:
-    """Decoded rows kept at ``path``, read into memory, or None when there are none,
-    they cannot be read or they do not have ``shape``. (Mapping the file instead
-    made the first lookups five times slower: every row they touch is a page fault.)"""
+    """Decoded rows kept at ``path``, or None when there are none, they cannot be read
+    or they do not have ``shape``.
+
+    Mapped with every page entered at once (``MAP_POPULATE``, where the system has
+    it), else read into memory. Reading 256 MB took 0.5 s of a tracker's start (most
+    of it giving the process fresh pages), mapping them takes under 1 ms, and 2,000
+    rows are gathered as fast as from memory (0.17 ms). A plain map is not used: every
+    row a lookup touched first was a page fault, and the first 40 lookups took 59 ms
+    median instead of 12.
+    """
     try:
-        rows = np.load(path, allow_pickle=False)
+        with open(path, "rb") as file:
+            version = np.lib.format.read_magic(file)
+            header = np.lib.format.read_array_header_2_0 if version >= (2, 0) else (
+                np.lib.format.read_array_header_1_0
+            )  # fmt: skip
+            stored_shape, fortran_order, dtype = header(file)
+            if stored_shape != shape or dtype != np.uint8 or fortran_order:
+                return None  # another array under that name
+            offset = file.tell()
+            if os.fstat(file.fileno()).st_size != offset + int(np.prod(shape)):
+                return None  # cut short
+            if not hasattr(mmap, "MAP_POPULATE"):
+                return np.fromfile(file, np.uint8).reshape(shape)
+            mapped = mmap.mmap(
+                file.fileno(), 0, flags=mmap.MAP_SHARED | mmap.MAP_POPULATE, prot=mmap.PROT_READ
+            )
     except (OSError, ValueError, EOFError):
-        return None
-    if not isinstance(rows, np.ndarray) or rows.shape != shape or rows.dtype != np.uint8:
-        return None  # an archive or another array under that name
-    return np.asarray(rows, dtype=np.uint8)
+        return None  # none, or not an array file (an archive under that name)
+    return np.frombuffer(mapped, np.uint8, offset=offset).reshape(shape)
 
 
 def save_rows(path: str | os.PathLike[str], rows: NDArray[np.uint8]) -> None:
