@@ -114,6 +114,11 @@ def test_decoded_rows_of_a_large_database_are_kept_in_the_cache(
     damaged.write_bytes(b"\x93NUMPY not rows")  # decoded again, and kept again
     with DatabaseIndex(small_database) as index:
         np.testing.assert_array_equal(index.rows(16, ids), first[16])
+    kept = damaged.read_bytes()
+    damaged.write_bytes(kept[:-100])  # cut short: decoded again too
+    with DatabaseIndex(small_database) as index:
+        np.testing.assert_array_equal(index.rows(16, ids), first[16])
+    assert damaged.read_bytes() == kept
 
     def refuse(self, size):
         raise AssertionError("decoded again instead of read back")
