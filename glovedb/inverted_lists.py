@@ -157,8 +157,7 @@ def inverted_lists(
     -------
     InvertedLists
     """
-    from sklearn.cluster import KMeans  # a build-time dependency only
-    from sklearn.decomposition import PCA
+    from sklearn.decomposition import PCA  # scikit-learn: a build-time dependency only
 
     distinct = _as_distinct(stage)
     packed = distinct.images
@@ -177,7 +176,7 @@ def inverted_lists(
         labels = unpack_tiny_images(_rows(packed, rows)).reshape(len(rows), -1)
         _list_kernels.project_rows(labels, weights, features[start : start + len(rows)])
     features -= (pca.mean_ @ pca.components_.T).astype(np.float32)
-    lists = _two_level_kmeans(features, sample, _list_count(count), seed, KMeans)
+    lists = _two_level_kmeans(features, sample, _list_count(count), seed)
     order = np.argsort(lists, kind="stable")
     counts = np.bincount(lists)
     list_offsets = np.concatenate([[0], np.cumsum(counts[counts > 0])]).astype(np.int64)
@@ -226,9 +225,8 @@ def probed_lists(
     lists: InvertedLists, maps: NDArray[np.float32], min_entries: int
 ) -> NDArray[np.int64]:
     """The lists a query scans, most promising first (mean distance less twice its
-    spread, module docstring), until they hold
-    ``probe_share`` of the images and at least ``min_entries`` entries (all lists
-    when the database holds fewer).
+    spread, module docstring), until they hold ``probe_share`` of the images and at
+    least ``min_entries`` entries (all lists when the database holds fewer).
 
     Parameters
     ----------
@@ -303,12 +301,13 @@ def _two_level_kmeans(
     sample: NDArray[np.int64],
     lists: int,
     seed: int,
-    kmeans: type,
 ) -> NDArray[np.int64]:
     """List of every row: k-means on the sample into up to 64 groups, then each
     group's sample into up to 64 lists; every row goes to its nearest list."""
+    from sklearn.cluster import KMeans
+
     top = max(1, min(_TOP_LISTS, round(np.sqrt(lists)), len(sample)))
-    coarse = kmeans(top, n_init=1, max_iter=20, random_state=seed).fit(features[sample])
+    coarse = KMeans(top, n_init=1, max_iter=20, random_state=seed).fit(features[sample])
     group = _nearest(features, coarse.cluster_centers_)
     sample_group = group[sample]
     labels = np.empty(len(features), np.int64)
@@ -321,7 +320,7 @@ def _two_level_kmeans(
         if fine == 1:
             labels[members] = index * _TOP_LISTS
             continue
-        clustering = kmeans(fine, n_init=1, max_iter=20, random_state=seed)
+        clustering = KMeans(fine, n_init=1, max_iter=20, random_state=seed)
         clustering.fit(features[in_sample])
         labels[members] = index * _TOP_LISTS + _nearest(
             features[members], clustering.cluster_centers_

@@ -29,7 +29,7 @@ from glovedb.distinct_images import (
     distinct_image_count,
     distinct_tiny_images,
 )
-from glovedb.inverted_lists import InvertedLists, inverted_lists
+from glovedb.inverted_lists import inverted_lists
 from glovedb.search import (
     CascadeStage,
     CoarseMaps,
@@ -44,6 +44,7 @@ from glovedb.search import (
 )
 from glovedb.stage_cache import (
     CACHE_AT_LEAST,
+    FirstStageImages,
     load_first_stage,
     load_rows,
     save_first_stage,
@@ -57,7 +58,6 @@ THESIS_CASCADE = "16:500,64:3"
 
 FirstStage: TypeAlias = Literal["auto", "distinct", "scan", "lists"]
 FIRST_STAGES: tuple[FirstStage, ...] = ("auto", "distinct", "scan", "lists")
-FirstStageImages: TypeAlias = PackedTinyImages | DistinctTinyImages | InvertedLists
 _DISTINCT_AT_MOST = 0.75
 """``first_stage="auto"`` scans the distinct images when there are at most this many
 per entry. Both give the same result; with fewer repeats the grouping saves little

@@ -50,8 +50,9 @@ Inverted lists
 
 Sources
     Each size in the ``database`` mapping is a :class:`PackedTinyImages` or, for the
-    first stage only, a :class:`~glovedb.distinct_images.DistinctTinyImages` (resident;
-    the first stage needs one of them), an ``(N, s, s) uint8`` array, or a
+    first stage only, a :class:`~glovedb.distinct_images.DistinctTinyImages` or
+    :class:`~glovedb.inverted_lists.InvertedLists` (resident; the first stage needs one
+    of them), an ``(N, s, s) uint8`` array, or a
     :data:`RowLoader` ``ids -> (len(ids), s, s) uint8`` that the HDF5 reader can supply
     for the large sizes; the few rows a later stage needs are scanned as plain labels
     (packing them would cost more than scanning them).
@@ -524,7 +525,8 @@ def _query_image(query_images: Mapping[int, ArrayLike], size: int) -> NDArray[np
 
 def _num_entries(database: Mapping[int, TinyImageSource], first_size: int) -> int:
     """Entries in the database; checks that the first stage's images are in memory
-    and that distinct images (which have no rows by entry) serve only that stage."""
+    and that distinct images and lists (which have no rows by entry) serve only that
+    stage."""
     for size, source in database.items():
         if isinstance(source, DistinctTinyImages | InvertedLists):
             distinct = source if isinstance(source, DistinctTinyImages) else source.images

@@ -38,6 +38,7 @@ from glovedb.inverted_lists import LIST_ARRAYS, InvertedLists
 from glovedb.packed_images import PackedTinyImages
 
 FirstStageImages = PackedTinyImages | DistinctTinyImages | InvertedLists
+"""What a cascade's first stage scans (:class:`glovedb.lookup.DatabaseIndex`)."""
 
 CACHE_AT_LEAST = 100_000
 """Databases with fewer searchable entries make their first stage in well under 0.1 s
