@@ -1,5 +1,6 @@
 """The database lookup off the frame (tracker/background.py) and its use by the tracker."""
 
+import os
 import threading
 
 import numpy as np
@@ -52,6 +53,19 @@ def test_a_job_is_collected_at_its_frame_after_it_finished():
     assert lookups.collect(7) == ("warm", 42)  # waits for the job
     assert not lookups.busy and lookups.collect(8) is None
     lookups.close()
+
+
+@pytest.mark.skipif(not hasattr(os, "setpriority"), reason="no per-thread priority")
+def test_the_worker_runs_at_a_lower_priority_than_the_tracking_thread():
+    def niceness() -> int:
+        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+    background: BackgroundLookup[str, int] = BackgroundLookup(delay_frames=1)
+    background.submit(0, "warm", niceness)
+    collected = background.collect(1)
+    background.close()
+    assert collected is not None
+    assert collected[1] > niceness() or collected[1] == 19  # lower, or already lowest
 
 
 def test_a_jobs_error_is_raised_where_it_is_collected_and_discarded_jobs_are_dropped():
