@@ -478,3 +478,62 @@ def silhouette_rows(
             value[p] = z - (seen - depth_margin32)
             direction[p, 0], direction[p, 1], direction[p, 2] = 0.0, 0.0, 1.0
     return outside
+
+
+@numba.njit(nogil=True, cache=True)
+def proportion_differences(
+    weights: NDArray[np.float64],
+    rest_m: NDArray[np.float64],
+    rest_maps: NDArray[np.float64],
+    pose_maps: NDArray[np.float64],
+    rotation: NDArray[np.float64],
+    step: float,
+    out: NDArray[np.float64],
+) -> None:
+    """Forward differences of skinned samples by the proportions.
+
+    ``weights (P, B)`` skinning weights, ``rest_m (P, 3)`` the model's rest samples,
+    ``rest_maps, pose_maps (K, B, 3, 4)`` per proportion vector (the base first, then
+    each stepped one) the bones' re-resting and posing maps, ``rotation (3, 3)`` the
+    hand's; ``out (P, 3, K - 1)`` gets ``rotation @ (hand_k - hand_0) / step`` where
+    ``hand_k`` is the sample re-rested and posed with the blended maps of vector ``k``.
+    """
+    samples, bones = weights.shape
+    vectors = rest_maps.shape[0]
+    hand = np.empty((vectors, 3))
+    rested = np.empty(3)
+    blend_rest = np.empty((3, 4))
+    blend_pose = np.empty((3, 4))
+    moving = np.empty(bones, np.int64)
+    for sample in range(samples):
+        count = 0
+        for bone in range(bones):
+            if weights[sample, bone] != 0.0:
+                moving[count] = bone
+                count += 1
+        for vector in range(vectors):
+            for i in range(3):
+                for j in range(4):
+                    blend_rest[i, j] = 0.0
+                    blend_pose[i, j] = 0.0
+            for index in range(count):
+                bone = moving[index]
+                weight = weights[sample, bone]
+                for i in range(3):
+                    for j in range(4):
+                        blend_rest[i, j] += weight * rest_maps[vector, bone, i, j]
+                        blend_pose[i, j] += weight * pose_maps[vector, bone, i, j]
+            for i in range(3):
+                rested[i] = blend_rest[i, 3]
+                for j in range(3):
+                    rested[i] += blend_rest[i, j] * rest_m[sample, j]
+            for i in range(3):
+                hand[vector, i] = blend_pose[i, 3]
+                for j in range(3):
+                    hand[vector, i] += blend_pose[i, j] * rested[j]
+        for vector in range(1, vectors):
+            for i in range(3):
+                total = 0.0
+                for j in range(3):
+                    total += rotation[i, j] * (hand[vector, j] - hand[0, j])
+                out[sample, i, vector - 1] = total / step

