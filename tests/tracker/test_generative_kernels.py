@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from helpers import model_observation, model_pose
+from scipy.spatial import cKDTree
 
 from glovedb.hand_model import JOINT_NAMES, N_BONES, make_skeleton
 from glovedb.mesh import make_hand_mesh, skin, skinning_matrices
@@ -21,7 +22,6 @@ from tracker.generative.energy.silhouette import silhouette_residuals
 from tracker.generative.fit import FitSettings, frame_energy
 from tracker.generative.model import MOVES, HandPose, PosedHand, hand_samples
 from tracker.generative.observation import look_up
-from tracker.icp import class_coordinate, class_tree
 
 
 @pytest.fixture(scope="module")
@@ -39,13 +39,12 @@ def _observation(samples, pose):
 
 
 def _reference_pairs(observed, observed_labels, model, model_labels, gate_m, depth_scale):
-    """Nearest model point of each observed point's class by one k-d tree, as the data
-    term paired before: ``(distance, nearest)``, -1 beyond the gate."""
+    """Nearest model point of each observed point's class by one k-d tree, the class a
+    fourth coordinate 100 m apart, as the data term and the ICP paired before:
+    ``(distance, nearest)``, -1 beyond the gate."""
     squash = np.array([1.0, 1.0, depth_scale])
-    tree = class_tree(model * squash, model_labels)
-    distance, nearest = tree.query(
-        np.column_stack([observed * squash, class_coordinate(observed_labels)])
-    )
+    tree = cKDTree(np.column_stack([model * squash, model_labels * 100.0]))
+    distance, nearest = tree.query(np.column_stack([observed * squash, observed_labels * 100.0]))
     return distance, np.where(distance < gate_m, nearest, -1)
 
 

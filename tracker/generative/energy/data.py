@@ -51,10 +51,10 @@ def nearest_of_class(
 
     The distance is ``|diag(1, 1, depth_scale) (p - q)|``; pairs at ``gate_m`` or
     farther are not made. What a k-d tree over all classes with the class as a far
-    fourth coordinate (:func:`tracker.icp.class_tree`) finds, up to ties, without
-    building one: the model points are binned by class and by a grid over x and y,
-    and a query visits the cells of its class in rings around its own until no
-    nearer point can remain.
+    fourth coordinate finds, up to ties, without building one (the rigid ICP,
+    :mod:`tracker.icp`, pairs with it too): the model points are binned by class and
+    by a grid over x and y, and a query visits the cells of its class in rings around
+    its own until no nearer point can remain.
 
     Parameters
     ----------
