@@ -14,6 +14,30 @@ from numpy.typing import NDArray
 _FASTMATH = {"reassoc", "contract"}
 
 
+@numba.njit(nogil=True, cache=True, fastmath=_FASTMATH, inline="always")
+def _row_error(
+    codes: NDArray[np.uint16],
+    glove_pixels: NDArray[np.uint16],
+    table: NDArray[np.float32],
+    row: int,
+) -> np.float32:
+    """The mean looked-up distance of one row (``inf`` without glove pixels)."""
+    positions = codes.shape[1]
+    unrolled = positions - positions % 4
+    # Four independent sums: the adds overlap instead of waiting on each other.
+    sum0 = sum1 = sum2 = sum3 = np.float32(0.0)
+    for position in range(0, unrolled, 4):
+        sum0 += table[position, codes[row, position]]
+        sum1 += table[position + 1, codes[row, position + 1]]
+        sum2 += table[position + 2, codes[row, position + 2]]
+        sum3 += table[position + 3, codes[row, position + 3]]
+    for position in range(unrolled, positions):
+        sum0 += table[position, codes[row, position]]
+    count = glove_pixels[row]
+    total = (sum0 + sum1) + (sum2 + sum3)
+    return np.float32(np.inf) if count == 0 else total / np.float32(count)
+
+
 @numba.njit(nogil=True, cache=True, fastmath=_FASTMATH)
 def score_rows(
     codes: NDArray[np.uint16],
@@ -29,21 +53,8 @@ def score_rows(
     summed chamfer distances per group position and code, ``glove_pixels (M,) uint16``
     the glove pixel counts (0 gives ``inf``).
     """
-    positions = codes.shape[1]
-    unrolled = positions - positions % 4
     for row in range(start, stop):
-        # Four independent sums: the adds overlap instead of waiting on each other.
-        sum0 = sum1 = sum2 = sum3 = np.float32(0.0)
-        for position in range(0, unrolled, 4):
-            sum0 += table[position, codes[row, position]]
-            sum1 += table[position + 1, codes[row, position + 1]]
-            sum2 += table[position + 2, codes[row, position + 2]]
-            sum3 += table[position + 3, codes[row, position + 3]]
-        for position in range(unrolled, positions):
-            sum0 += table[position, codes[row, position]]
-        count = glove_pixels[row]
-        total = (sum0 + sum1) + (sum2 + sum3)
-        errors[row] = np.float32(np.inf) if count == 0 else total / np.float32(count)
+        errors[row] = _row_error(codes, glove_pixels, table, row)
 
 
 @numba.njit(nogil=True, cache=True, fastmath=_FASTMATH)
@@ -58,22 +69,10 @@ def score_ranges(
     """Like :func:`score_rows` over the rows of each range ``starts[i]:stops[i]``, the
     errors of all ranges written one after the other into ``errors`` (the few hundred
     lists a query probes, in one call)."""
-    positions = codes.shape[1]
-    unrolled = positions - positions % 4
     out = 0
     for index in range(len(starts)):
         for row in range(starts[index], stops[index]):
-            sum0 = sum1 = sum2 = sum3 = np.float32(0.0)
-            for position in range(0, unrolled, 4):
-                sum0 += table[position, codes[row, position]]
-                sum1 += table[position + 1, codes[row, position + 1]]
-                sum2 += table[position + 2, codes[row, position + 2]]
-                sum3 += table[position + 3, codes[row, position + 3]]
-            for position in range(unrolled, positions):
-                sum0 += table[position, codes[row, position]]
-            count = glove_pixels[row]
-            total = (sum0 + sum1) + (sum2 + sum3)
-            errors[out] = np.float32(np.inf) if count == 0 else total / np.float32(count)
+            errors[out] = _row_error(codes, glove_pixels, table, row)
             out += 1
 
 
