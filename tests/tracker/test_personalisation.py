@@ -9,6 +9,7 @@ import pytest
 from builder.sequence import SequenceSettings, render_sequence
 from glovedb.proportions import HandProportions
 from tracker.evaluation import evaluate
+from tracker.generative.fit import fit_frame
 from tracker.pipeline import Tracker, TrackerSettings
 from tracker.run import HAND_FILE, POSES_FILE, track_source
 from tracker.sources import open_source
@@ -22,11 +23,21 @@ def _track(database, sequence, out, settings=None):
     return evaluate(out / POSES_FILE, sequence / "groundtruth.jsonl")
 
 
-def test_the_tracker_learns_a_smaller_hand(open_pinch_power_database, tmp_path):
+def test_the_tracker_learns_a_smaller_hand(open_pinch_power_database, tmp_path, monkeypatch):
+    import tracker.pipeline
+
     sequence = tmp_path / "small"
     settings = SequenceSettings(trajectory="tr1", frames=45, noise="kinect_v1", hand_length_m=0.17)
     render_sequence(settings, sequence)
+    allowed = {True: set(), False: set()}  # iterations allowed, by estimating or not
+
+    def recording(*args, **kwargs):
+        allowed[kwargs.get("estimate_proportions", False)].add(kwargs["settings"].iterations)
+        return fit_frame(*args, **kwargs)
+
+    monkeypatch.setattr(tracker.pipeline, "fit_frame", recording)
     result = _track(open_pinch_power_database, sequence, tmp_path / "run")
+    assert allowed == {True: {TrackerSettings().calibration_iterations}, False: {6}}
     hand = json.loads((tmp_path / "run" / HAND_FILE).read_text())
     assert hand["complete"] and hand["source"] == "estimated online"
     assert hand["length_scale"] == pytest.approx(0.17 / 0.19, abs=0.015)
