@@ -405,8 +405,8 @@ class PosedHand:
         The samples of the hand with the proportions and with each one stepped are
         re-rested and skinned as :func:`~glovedb.proportions.proportioned_mesh` and
         :func:`~glovedb.mesh.skin` would, all eight at once: per bone only the 3 x 4
-        maps differ, so each vertex blends them in one compiled loop (3.7 ms for the
-        3,771 samples of the default mesh in NumPy, a fraction of that compiled).
+        maps differ, so each vertex blends them in one compiled loop (1.7 ms for the
+        3,771 samples of the default mesh; 3.7 ms with NumPy products).
         """
         ids = np.asarray(sample_ids, dtype=np.int64)
         if self._proportion_jacobian is not None:
