@@ -37,7 +37,8 @@ def test_the_tracker_learns_a_smaller_hand(open_pinch_power_database, tmp_path, 
 
     monkeypatch.setattr(tracker.pipeline, "fit_frame", recording)
     result = _track(open_pinch_power_database, sequence, tmp_path / "run")
-    assert allowed == {True: {TrackerSettings().calibration_iterations}, False: {6}}
+    defaults = TrackerSettings()
+    assert allowed == {True: {defaults.calibration_iterations}, False: {defaults.fit.iterations}}
     hand = json.loads((tmp_path / "run" / HAND_FILE).read_text())
     assert hand["complete"] and hand["source"] == "estimated online"
     assert hand["length_scale"] == pytest.approx(0.17 / 0.19, abs=0.015)
