@@ -166,14 +166,14 @@ def inverted_lists(
     sample = np.sort(rng.choice(count, size=min(count, _SAMPLE), replace=False))
     pca = PCA(min(_FEATURES, len(sample)), random_state=seed)
     blur = _blur_matrix(packed.size)
-    pca.fit(_one_hot(unpack_tiny_images(_rows(packed, sample[:_PCA_SAMPLE]))) @ blur)
+    pca.fit(_one_hot(unpack_tiny_images(packed.take(sample[:_PCA_SAMPLE]))) @ blur)
     # The features are linear in the one-hot labels: blur, then PCA's projection.
     weights = (blur @ pca.components_.T).astype(np.float32)
     weights = np.ascontiguousarray(weights.reshape(NUM_CLASSES, packed.size**2, -1))
     features = np.empty((count, pca.n_components_), np.float32)
     for start in range(0, count, _CHUNK):
         rows = np.arange(start, min(count, start + _CHUNK))
-        labels = unpack_tiny_images(_rows(packed, rows)).reshape(len(rows), -1)
+        labels = unpack_tiny_images(packed.take(rows)).reshape(len(rows), -1)
         _list_kernels.project_rows(labels, weights, features[start : start + len(rows)])
     features -= (pca.mean_ @ pca.components_.T).astype(np.float32)
     lists = _two_level_kmeans(features, sample, _list_count(count), seed)
@@ -265,15 +265,6 @@ def _as_distinct(stage: PackedTinyImages | DistinctTinyImages) -> DistinctTinyIm
     )
 
 
-def _rows(packed: PackedTinyImages, rows: NDArray[np.int64]) -> PackedTinyImages:
-    return PackedTinyImages(
-        codes=np.ascontiguousarray(packed.codes[rows]),
-        glove_pixels=packed.glove_pixels[rows],
-        size=packed.size,
-        group=packed.group,
-    )
-
-
 def _one_hot(images: NDArray[np.uint8]) -> NDArray[np.float32]:
     """``(M, 10 * s * s)`` class masks over each image's glove pixel count (``u``)."""
     classes = np.arange(1, NUM_CLASSES + 1, dtype=np.uint8)[None, :, None, None]
@@ -344,7 +335,7 @@ def _reordered(distinct: DistinctTinyImages, order: NDArray[np.int64]) -> Distin
     starts = distinct.offsets[order]
     lengths = distinct.offsets[order + 1] - starts
     return DistinctTinyImages(
-        images=_rows(distinct.images, order),
+        images=distinct.images.take(order),
         entry_ids=distinct.entry_ids[range_positions(starts, lengths)],
         offsets=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
     )
@@ -359,7 +350,7 @@ def _list_moments(
     list_of_image = np.repeat(np.arange(len(list_offsets) - 1), np.diff(list_offsets))
     for start in range(0, packed.num_entries, _CHUNK):
         rows = np.arange(start, min(packed.num_entries, start + _CHUNK))
-        labels = unpack_tiny_images(_rows(packed, rows)).reshape(len(rows), -1)
+        labels = unpack_tiny_images(packed.take(rows)).reshape(len(rows), -1)
         _list_kernels.add_list_sums(labels, list_of_image[rows], sums, squares)
     counts = np.diff(list_offsets)[:, None]
     means = sums / counts

@@ -66,6 +66,15 @@ class PackedTinyImages:
         """Bytes of the codes and glove pixel counts."""
         return self.codes.nbytes + self.glove_pixels.nbytes
 
+    def take(self, rows: NDArray[np.int64]) -> PackedTinyImages:
+        """The images at ``rows`` (int indices), in that order, as a new copy."""
+        return PackedTinyImages(
+            codes=np.ascontiguousarray(self.codes[rows]),
+            glove_pixels=self.glove_pixels[rows],
+            size=self.size,
+            group=self.group,
+        )
+
 
 def pack_tiny_images(images: ArrayLike, *, group: int | None = None) -> PackedTinyImages:
     """Convert label images to the compact scan layout.

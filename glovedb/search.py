@@ -564,14 +564,7 @@ def _rows(
     if isinstance(source, PackedTinyImages):
         if source.size != size:
             raise ValueError(f"{name}: holds {source.size}x{source.size} images")
-        if ids is None:
-            return source
-        return PackedTinyImages(
-            codes=source.codes[ids],
-            glove_pixels=source.glove_pixels[ids],
-            size=size,
-            group=source.group,
-        )
+        return source if ids is None else source.take(ids)
     if callable(source):
         assert ids is not None  # _num_entries rejects a loader in the first stage
         loaded = as_array(f"rows loaded for {name}", source(ids), (len(ids), size, size))

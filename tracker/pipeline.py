@@ -165,8 +165,8 @@ class TrackerSettings:
         take ``fit.iterations``, 4). The proportions' seven extra unknowns made a
         calibrating fit cost twice a plain one (17 against 8.5 ms with 6 iterations
         each); with 3 it costs 9.8 ms, and the 30 calibrating frames no longer stand
-        out in the latency. Chosen on the validation renders of Tr3 and
-        Tr5 (noise seed 7), the dim cluttered room, free finger motion and the
+        out in the latency. Chosen on Tr3 and Tr5 rendered with noise seed 7 and
+        checked on the renders of the dim cluttered room, free finger motion and the
         0.17 m and longer-fingered hands: the proportions came out the same to three
         decimals and the mean posture errors within 0.01 degrees.
     lookup_candidates : int
