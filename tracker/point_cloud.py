@@ -107,8 +107,36 @@ def hand_region(
     z_min, z_max = z_range_m
     valid_depth = (depth >= z_min) & (depth <= z_max)
     glove = (label_image > 0) & ((depth == 0) | valid_depth)
-    if not glove.any():
+    rows_with_glove = np.flatnonzero(glove.any(axis=1))
+    if len(rows_with_glove) == 0:
         return _empty_region()
+    # Everything below works in the glove pixels' bounding box, widened by a margin
+    # that no 3x3 closing or opening (or the 5x5 dilation) reaches across: the same
+    # blobs, in the same order, as on the whole frame, at a fraction of the cost.
+    cols_with_glove = np.flatnonzero(glove.any(axis=0))
+    height, width = glove.shape
+    top = max(int(rows_with_glove[0]) - _WINDOW_MARGIN_PX, 0)
+    bottom = min(int(rows_with_glove[-1]) + _WINDOW_MARGIN_PX + 1, height)
+    left = max(int(cols_with_glove[0]) - _WINDOW_MARGIN_PX, 0)
+    right = min(int(cols_with_glove[-1]) + _WINDOW_MARGIN_PX + 1, width)
+    window = (slice(top, bottom), slice(left, right))
+    region = _region_in_window(
+        label_image[window], depth[window], glove[window], join_depth_m, hand_depth_band_m
+    )
+    region.pixels_uv[:, 0] += left
+    region.pixels_uv[:, 1] += top
+    return region
+
+
+def _region_in_window(
+    label_image: NDArray[np.uint8],
+    depth: NDArray[np.float32],
+    glove: NDArray[np.bool_],
+    join_depth_m: float,
+    hand_depth_band_m: float,
+) -> HandRegion:
+    """:func:`hand_region` within a window that holds every glove pixel; pixels in
+    window coordinates."""
     square = np.ones((3, 3), np.uint8)
     glove_u8 = glove.astype(np.uint8)
     closed = cv2.morphologyEx(glove_u8, cv2.MORPH_CLOSE, square)
@@ -162,6 +190,10 @@ def labeled_point_cloud(region: HandRegion, intrinsics: CameraIntrinsics) -> Lab
     has_depth = region.depth_m > 0
     points = intrinsics.back_project(region.pixels_uv[has_depth], region.depth_m[has_depth])
     return LabeledPointCloud(points.astype(np.float32), region.labels[has_depth])
+
+
+_WINDOW_MARGIN_PX = 4
+"""Pixels around the glove's bounding box that :func:`hand_region` works in."""
 
 
 def _median_depth(depth: NDArray[np.float32], mask: NDArray[np.bool_]) -> float:

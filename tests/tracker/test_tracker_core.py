@@ -124,6 +124,28 @@ def test_hand_region_ignores_glove_colored_noise_on_the_wall_behind():
     assert not (kept & ~hand & ~ring).any()  # at most wall noise touching the hand
 
 
+def test_hand_region_is_the_same_wherever_the_scene_lies_in_the_frame():
+    # hand_region works in the window of the glove pixels: a noisy scene that fills its
+    # frame (the window is the frame) gives the same region as the scene placed inside
+    # a larger empty frame, shifted.
+    rng = np.random.default_rng(6)
+    labels = np.where(rng.random((60, 80)) < 0.3, rng.integers(1, 11, (60, 80)), 0)
+    depth = np.where(rng.random((60, 80)) < 0.1, 0.0, 1.2).astype(np.float32)
+    labels[20:45, 25:50] = 7  # a hand in the noise
+    depth[20:45, 25:50] = 0.6
+    region = hand_region(labels.astype(np.uint8), depth)
+    assert len(region) >= 25 * 25
+    for top, left in ((0, 0), (37, 91), (140, 120)):
+        big_labels = np.zeros((200, 200), np.uint8)
+        big_depth = np.zeros((200, 200), np.float32)
+        big_labels[top : top + 60, left : left + 80] = labels
+        big_depth[top : top + 60, left : left + 80] = depth
+        moved = hand_region(big_labels, big_depth)
+        np.testing.assert_array_equal(moved.pixels_uv, region.pixels_uv + [left, top])
+        np.testing.assert_array_equal(moved.labels, region.labels)
+        np.testing.assert_array_equal(moved.depth_m, region.depth_m)
+
+
 def test_rigid_fit_recovers_a_transform():
     rng = np.random.default_rng(1)
     points = rng.normal(size=(50, 3))
