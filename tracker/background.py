@@ -1,27 +1,29 @@
-"""The database lookup off the frame: a second start found while the next frames are
-tracked.
+"""The database lookup off the frame: a second start found in steps over the next
+frames.
 
 While the hand is tracked, the tracker still looks it up in the database every
 ``reinit_every`` frames, fits from the looked-up start and keeps the lower energy: on
 the rendered Tr1-Tr5 sequences this second start wins about half the time and takes
-0-0.5 degrees off the mean posture error (0.5 on Tr3). Within the frame it costs the
-lookup, the ICP and a second fit, about 26 ms on a laptop-class core: those frames
-set the 99th percentile of the latency.
+0-0.5 degrees off the mean posture error (0.5 on Tr3). Within one frame it costs the
+lookup, the ICP and a second fit, about 16 ms on a laptop-class core besides the
+frame's own 10: those frames would set the 99th percentile of the latency.
 
-:class:`BackgroundLookup` runs that work in a worker thread on the frame where it is
-due while the tracker goes on with the next frames from their warm starts, and hands
-the looked-up fit back ``delay_frames`` later, at a fixed frame (waiting for it if
-need be), so that a run gives the same poses on every machine. When the looked-up
-fit explained its frame with a lower energy than the warm fit of that frame did, the
-tracker's next start carries the difference (:func:`carried_start`): the lookup's
-correction applied to the pose the warm fits have reached since.
+:class:`DeferredLookup` spreads that work over the frames that follow, in the tracking
+thread: the job is a generator that yields between its steps (the lookup, the ICP, the
+fit; :meth:`tracker.pipeline.Tracker` writes it), each frame runs one step, and the
+frame ``delay_frames`` later collects the result, running whatever steps are left. So
+no frame does more than its own work and one step (at most about 7 ms), and a run
+gives the same poses on every machine. When the looked-up fit explained its frame with
+a lower energy than the warm fit of that frame did, the tracker's next start carries
+the difference (:func:`carried_start`): the lookup's correction applied to the pose
+the warm fits have reached since.
 
-The worker runs at a lower scheduling priority (niceness 10, on Linux, where it is
-per thread), so that the frames tracked beside a job keep their cores and the job
-takes what is left. On a 2-core machine (`Tr3`, DB_open+pinch+power, three
-interleaved pairs of runs) frames over 25 ms went from 59-68 to 52-59 of 241, the
-median latency from 18.4-19.9 to 17.9-18.3 ms; the frames that collect a job wait
-a little longer for it.
+Until issue 22 a worker thread ran the job at a lower priority and the collecting
+frame waited for it. On a 2-core machine tracking a recording, the reader thread
+(decoding, classification, segmentation) keeps the second core busy, so the worker got
+little of either core and the collecting frames waited up to 17 ms
+(`glove bench track` on Tr3: 8 of 241 frames over 25 ms were such frames, and the
+frames beside the job slowed too).
 
 A lookup that the warm fit's failure asks for (no hand, a fit that fails the quality
 test) is not deferred: that frame has no other answer; nor is one that a suspect fit
@@ -31,29 +33,31 @@ correction cost a ball in front of the hand and a dim cluttered room accuracy.
 
 from __future__ import annotations
 
-import os
-import threading
-from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+import time
+from collections.abc import Generator
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
 from tracker.generative.model import HandPose
 
-_WORKER_NICENESS = 10
 T = TypeVar("T")
 W = TypeVar("W")
 
+Job = Generator[None, None, T]
+"""A deferred job: yields between its steps, returns its result."""
 
-@dataclass(frozen=True)
+
+@dataclass
 class _Pending(Generic[W, T]):
     frame_index: int
     warm: W
-    future: Future[T]
+    job: Job[T]
+    done: bool = False
+    result: T | None = None
 
 
-class BackgroundLookup(Generic[W, T]):
-    """At most one job at a time in a worker thread, collected at a fixed frame.
+class DeferredLookup(Generic[W, T]):
+    """At most one job at a time, run one step per frame, collected at a fixed frame.
 
     Parameters
     ----------
@@ -66,7 +70,6 @@ class BackgroundLookup(Generic[W, T]):
         if delay_frames < 1:
             raise ValueError(f"delay_frames: expected >= 1, got {delay_frames}")
         self.delay_frames = delay_frames
-        self._executor: ThreadPoolExecutor | None = None
         self._pending: _Pending[W, T] | None = None
 
     @property
@@ -74,8 +77,9 @@ class BackgroundLookup(Generic[W, T]):
         """Whether a job waits to be collected."""
         return self._pending is not None
 
-    def submit(self, frame_index: int, warm: W, job: Callable[[], T]) -> None:
-        """Start ``job`` for frame ``frame_index`` (whose warm fit was ``warm``).
+    def submit(self, frame_index: int, warm: W, job: Job[T]) -> None:
+        """Take ``job`` for frame ``frame_index`` (whose warm fit was ``warm``); none of
+        it runs until :meth:`advance` or :meth:`collect`.
 
         Raises
         ------
@@ -83,44 +87,46 @@ class BackgroundLookup(Generic[W, T]):
             When a job is still pending.
         """
         if self._pending is not None:
-            raise RuntimeError("a background lookup is still pending")
-        if self._executor is None:
-            self._executor = ThreadPoolExecutor(
-                1, thread_name_prefix="glove-lookup", initializer=_yield_to_other_threads
-            )
-        self._pending = _Pending(frame_index, warm, self._executor.submit(job))
+            raise RuntimeError("a deferred lookup is still pending")
+        self._pending = _Pending(frame_index, warm, job)
+
+    def advance(self) -> float:
+        """Run the pending job's next step, if it has one left; the milliseconds it took
+        (0 when nothing ran). A job's exception is raised here."""
+        pending = self._pending
+        if pending is None or pending.done:
+            return 0.0
+        started = time.perf_counter()
+        try:
+            self._step(pending)
+        except BaseException:
+            self._pending = None
+            raise
+        return (time.perf_counter() - started) * 1000.0
 
     def collect(self, frame_index: int) -> tuple[W, T] | None:
-        """The warm fit and the job's result of the job due at ``frame_index``
-        (waiting for it to finish), or None when none is due. A job's exception is
-        raised here."""
+        """The warm fit and the result of the job due at ``frame_index`` (its steps
+        left run first), or None when none is due. A job's exception is raised here."""
         pending = self._pending
         if pending is None or frame_index < pending.frame_index + self.delay_frames:
             return None
         self._pending = None
-        return pending.warm, pending.future.result()
+        while not pending.done:
+            self._step(pending)
+        return pending.warm, pending.result  # type: ignore[return-value]
 
     def discard(self) -> None:
-        """Forget the pending job (it finishes in the worker; its result is dropped)."""
+        """Forget the pending job; its steps left never run."""
         if self._pending is not None:
-            self._pending.future.cancel()
+            self._pending.job.close()
         self._pending = None
 
-    def close(self) -> None:
-        """Discard the pending job and stop the worker once it is done."""
-        self.discard()
-        if self._executor is not None:
-            self._executor.shutdown(wait=True)
-            self._executor = None
-
-
-def _yield_to_other_threads() -> None:
-    """Lower the calling thread's scheduling priority (Linux: per thread), so that the
-    frames tracked beside a job keep their cores; elsewhere nothing changes."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), _WORKER_NICENESS)
-    except (AttributeError, OSError):
-        pass
+    @staticmethod
+    def _step(pending: _Pending[W, T]) -> None:
+        try:
+            next(pending.job)
+        except StopIteration as finished:
+            pending.done, pending.result = True, finished.value
 
 
 def carried_start(looked_up: HandPose, warm: HandPose, latest: HandPose) -> HandPose:

@@ -140,9 +140,8 @@ def run_track(args: argparse.Namespace) -> int:
     print(f"  tracking alone     {figures['tracking_fps']:.1f} frames/s")
     print_stages(figures["stages_ms"], ("median", "p95", "p99", "max"))
     if "background" in figures["stages_ms"]:
-        print("  total: a frame's latency; background: the periodic lookups, run in a worker\n"
-              "  thread beside the next frames (not in total); wait: what the frame that\n"
-              "  collects one waited for it")  # fmt: skip
+        print("  total: a frame's latency; background: a step of a periodic lookup (search,\n"
+              "  ICP or fit), one per frame in the frames after it is due (in total)")  # fmt: skip
     return 0
 
 
