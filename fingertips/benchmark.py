@@ -13,16 +13,17 @@ stage          what
 ``hand``       the hand depth (:func:`fingertips.detect.hand_depth`)
 ``forest``     probe image, compiled forest descent, leaf predictions and votes
 ``peaks``      mean-shift of the votes (:func:`fingertips.voting.find_peaks`)
-``geodesic``   geodesic candidates (:func:`fingertips.geodesic.geodesic_candidates`)
+``geodesic``   geodesic candidates (:func:`fingertips.geodesic.geodesic_candidates`), in
+               a worker thread beside the forest and the peaks
 ``describe``   merging the candidates and their verifier features
 ``verify``     the peak verifier (:func:`fingertips.verify.verify_peaks`)
 ``network``    the hand crop and the heatmap network's passes (onnxruntime), in the
                network's thread beside the stages above
 ``heatmap``    the rest of the heatmap stage: the heat peaks, their features and verifier
 ``other``      the rest of a frame's detection and its record (checks, waiting for the
-               network, calibration)
-``detect``     all of a frame's detection and record: every stage but ``read`` and
-               ``network`` (which overlaps them), and ``other``
+               geodesic stage and the network, calibration)
+``detect``     all of a frame's detection and record: every stage but ``read``,
+               ``geodesic`` and ``network`` (which overlap them), and ``other``
 =============  ==========================================================================
 
 The stages are timed by wrapping, for the run only, the functions
@@ -50,7 +51,7 @@ from tracker.overlay import TimingSummary, timing_summary
 
 STAGES: tuple[tuple[str, str, str], ...] = (
     ("hand", "fingertips.detect", "hand_depth"),
-    ("forest", "fingertips.detect", "_frame_votes"),
+    ("forest", "fingertips.detect", "_hand_votes"),
     ("peaks", "fingertips.detect", "find_peaks"),
     ("geodesic", "fingertips.detect", "geodesic_candidates"),
     ("describe", "fingertips.detect", "merge_candidates"),
