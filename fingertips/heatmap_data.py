@@ -75,6 +75,12 @@ class HeatmapTrainingConfig:
     verifier_iterations, verifier_leaf_nodes : int
         Boosting iterations and leaves per tree.
     verifier_learning_rate : float
+    quantize : bool
+        Store the network with 8-bit weights and activations
+        (:mod:`fingertips.heatmap_quantization`; 3 times faster at detection), before
+        its verifier is fitted on what it gives. Needs the ``onnx`` package.
+    quantize_crops : int
+        Frames of the first crop seed whose crops calibrate the quantization.
     seed : int
         Seeds PyTorch, the crop order and the boosting.
     """
@@ -98,10 +104,12 @@ class HeatmapTrainingConfig:
     verifier_iterations: int = 300
     verifier_leaf_nodes: int = 31
     verifier_learning_rate: float = 0.05
+    quantize: bool = False
+    quantize_crops: int = 200
     seed: int = 0
 
     def __post_init__(self) -> None:
-        for name in ("crops_per_seed", "width", "batch_size", "verifier_images"):
+        for name in ("crops_per_seed", "width", "batch_size", "verifier_images", "quantize_crops"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: expected at least 1, got {getattr(self, name)}")
         if not self.crop_seeds or not self.verifier_seeds:

@@ -11,7 +11,10 @@ at run time does. Four steps, all deterministic on a CPU:
    ``positive_weight``; each batch is turned by a random angle and mirrored half of
    the time. First ``whole_hand_epochs`` on the crops whose cube holds every keypoint,
    then ``all_epochs`` on all of them, each with a one-cycle learning rate schedule.
-3. **Export** (:func:`export_onnx`): ONNX bytes that onnxruntime runs at detection.
+3. **Export** (:func:`export_onnx`): ONNX bytes that onnxruntime runs at detection;
+   with ``quantize`` they are quantized to 8 bits
+   (:mod:`fingertips.heatmap_quantization`), calibrated on the crops of
+   ``quantize_crops`` frames of the first crop seed (a given float network too).
 4. **Verifier** (:func:`collect_heat_samples`, :func:`fit_heat_verifier`): on
    ``verifier_images`` more frames per seed of ``verifier_seeds`` the exported
    network's peaks are described by
@@ -49,6 +52,7 @@ from fingertips.heatmap import (
     frame_heat_peaks,
 )
 from fingertips.heatmap_data import Crops, HeatmapTrainingConfig, render_crops
+from fingertips.heatmap_quantization import is_quantized, quantize_network
 from fingertips.tree_export import pack_boosted_table
 
 # --- network ------------------------------------------------------------------------
@@ -394,6 +398,10 @@ def train_heatmap(
             "n_crops": len(crops.images),
             "n_whole_hand_crops": int(crops.whole_hand.sum()),
         }
+    if config.quantize and not is_quantized(network_onnx):
+        first_seed = config.crop_seeds[:1]
+        calibration = render_crops(frames, first_seed, config.quantize_crops, progress=progress)
+        network_onnx = quantize_network(network_onnx, calibration.images, passes=config.passes)
     network = HeatmapNetwork(network_onnx, config.passes)
     parts = []
     for seed in config.verifier_seeds:

@@ -8,6 +8,7 @@ import pytest
 
 from fingertips import detect_fingertips, load_forest, model_detector_config
 from fingertips.forest import DEFAULT_MODEL_PATH
+from fingertips.heatmap_quantization import is_quantized
 
 
 def test_shipped_model_loads_and_is_small() -> None:
@@ -19,6 +20,7 @@ def test_shipped_model_loads_and_is_small() -> None:
     assert "data" in model.settings and model.version
     assert model.verifier is not None and config.min_tip_probability > 0
     assert model.heatmap is not None and config.heatmap_min_probability > 0
+    assert is_quantized(model.heatmap.network_onnx)  # the 8-bit network (3x faster)
 
 
 def test_shipped_model_needs_no_scikit_learn_or_torch() -> None:
