@@ -2,6 +2,7 @@
 keeps a hand that an object partly hides."""
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -32,7 +33,8 @@ def test_the_tracker_learns_a_smaller_hand(open_pinch_power_database, tmp_path, 
     allowed = {True: set(), False: set()}  # iterations allowed, by estimating or not
 
     def recording(*args, **kwargs):
-        allowed[kwargs.get("estimate_proportions", False)].add(kwargs["settings"].iterations)
+        if sys._getframe(1).f_code.co_name != "_warm_up":  # the frames' fits only
+            allowed[kwargs.get("estimate_proportions", False)].add(kwargs["settings"].iterations)
         return fit_frame(*args, **kwargs)
 
     monkeypatch.setattr(tracker.pipeline, "fit_frame", recording)
