@@ -295,12 +295,14 @@ def _read_crop_file(name: str) -> tuple[Crops, dict[str, Any]]:
     return crops, settings
 
 
-def require_torch() -> None:
-    """Raise ValueError, with the way to install it, when PyTorch is missing."""
+def require_training_extra() -> None:
+    """Raise ValueError, with the way to install them, when PyTorch or onnx (the
+    ``train`` extra: training and quantizing the network) is missing."""
     try:
+        import onnx  # noqa: F401
         import torch  # noqa: F401
     except ImportError as error:
         raise ValueError(
-            f"[heatmap]: training the heatmap stage needs PyTorch ({error}); "
+            f"[heatmap]: training the heatmap stage needs PyTorch and onnx ({error}); "
             "install the train extra: bash scripts/setup.sh --train"
         ) from error

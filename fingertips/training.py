@@ -60,7 +60,7 @@ from fingertips.forest import FingertipForest
 from fingertips.heatmap_data import (
     HeatmapTrainingConfig,
     heatmap_config_from_dict,
-    require_torch,
+    require_training_extra,
 )
 from fingertips.tree_export import SklearnForest, pack_tree_table
 from fingertips.verifier_training import (
@@ -654,7 +654,7 @@ def train_from_recipe(
     """
     heatmap = recipe.heatmap
     if heatmap is not None:
-        require_torch()  # before any rendering
+        require_training_extra()  # before any rendering
     if heatmap is None and (keep_verifier or heatmap_network is not None):
         raise ValueError("the config has no [heatmap] table: nothing to train")
     if forest is not None:

@@ -386,12 +386,12 @@ def run_crops(args: argparse.Namespace) -> int:
 
 
 def run_train_heatmap(args: argparse.Namespace) -> int:
-    from fingertips.heatmap_data import load_crops, render_crops, require_torch
+    from fingertips.heatmap_data import load_crops, render_crops, require_training_extra
     from glovedb._files import write_atomically
 
     out = _output_file(args.out, ".onnx", "a network file")
     heatmap, data = _heatmap_recipe(args.config)
-    require_torch()
+    require_training_extra()
     started = time.perf_counter()
     if args.crops:
         crops = load_crops(args.crops, data=data)
