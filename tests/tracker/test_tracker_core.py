@@ -247,6 +247,35 @@ def test_tracker_finds_rendered_hands_and_reports_no_hand_without_glove(small_da
 
 
 @pytest.mark.gl
+def test_the_warm_up_leaves_no_trace_in_the_poses(small_database, renderer, monkeypatch):
+    # Tracker._warm_up runs the ICP and a fit on a synthetic frame; the tracker it
+    # leaves behind must track exactly as one that never warmed up.
+    from tracker.pipeline import Tracker, TrackerSettings
+
+    settings = TrackerSettings(cascade="8:30,16:10,32:3")
+    rotation = axis_angle_to_matrix(np.array([1.0, 0.0, 0.0]), np.pi)
+    frames = [
+        Frame(i, r.color, r.depth_m, KINECT_V1)
+        for i, r in enumerate(
+            renderer.render(named_posture(name), rotation, np.array([0.01, 0.0, 0.6]))
+            for name in ("open", "pinch", "pinch")
+        )
+    ]
+
+    def poses() -> list:
+        with Tracker(small_database, settings=settings) as tracker:
+            return [tracker.track(frame) for frame in frames]
+
+    warmed = poses()
+    monkeypatch.setattr(Tracker, "_warm_up", lambda self: None)
+    cold = poses()
+    for a, b in zip(warmed, cold, strict=True):
+        assert a.hand_found and b.hand_found
+        np.testing.assert_array_equal(a.posture_rad, b.posture_rad)
+        np.testing.assert_array_equal(a.translation_m, b.translation_m)
+
+
+@pytest.mark.gl
 def test_icp_converges_from_the_lookup_of_a_thesis_database(open_pinch_power_database, renderer):
     from tracker.pipeline import Tracker, TrackerSettings
 
