@@ -4,8 +4,8 @@ Database builds need only labels, and the triangles of the label mesh are about 
 pixel large at the render size: for such images a rasteriser specialised to them is
 several times faster than OpenGL (pyrender on Mesa's llvmpipe pays per-view scene
 set-up and per-triangle overhead), needs no OpenGL context and starts at once. The
-tracker's colour calibration uses it too, with the depth of the visible surface
-(:func:`rasterize_labels_and_depth`).
+tracker's colour calibration and its warm-up use it too, with the depth of the
+visible surface (:func:`rasterize_labels_and_depth`, :func:`model_label_image`).
 
 It follows OpenGL's rules, so its images equal :class:`builder.render.GloveRenderer`'s
 labels but for the rare pixel centre that lies on an edge to 1/256 pixel (tested):
@@ -29,6 +29,8 @@ from numpy.typing import ArrayLike, NDArray
 from glovedb import _raster_kernels
 from glovedb._validate import as_array
 from glovedb.camera import CameraIntrinsics
+from glovedb.mesh import HandMesh, pose_mesh
+from glovedb.pattern import LabeledVertices
 
 # Nearest depth a vertex may have; nearer views are an error (no clipping is done).
 MIN_DEPTH_M = 0.01
@@ -91,6 +93,32 @@ def rasterize_labels_and_depth(
     """
     args = (vertices_m, faces, face_labels, rotations, translations_m, camera)
     return _rasterize(*args, with_depth=True)
+
+
+def model_label_image(
+    mesh: HandMesh,
+    split: LabeledVertices,
+    posture_rad: ArrayLike,
+    rotation: ArrayLike,
+    translation_m: ArrayLike,
+    intrinsics: CameraIntrinsics,
+) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    """Class labels and depth of the posed glove model as the camera would see them.
+
+    Returns
+    -------
+    labels : (H, W) uint8
+        0 where the model is not seen.
+    depth_m : (H, W) float32
+        0 where the model is not seen.
+    """
+    R = as_array("rotation", rotation, (3, 3), np.float64, finite=True)
+    t = as_array("translation_m", translation_m, (3,), np.float64, finite=True)
+    vertices = pose_mesh(mesh, posture_rad)[split.source_vertex]
+    labels, depth = rasterize_labels_and_depth(
+        vertices, split.faces, split.labels[split.faces[:, 0]], R[None], t[None], intrinsics
+    )
+    return labels[0], depth[0]
 
 
 def _rasterize(

@@ -4,7 +4,7 @@ The nominal table knows the pattern's intended colors; a real glove's dyes, a ca
 color response and the room's light move them. Calibration learns the table from the
 glove itself: frames are tracked with the current table, and where the hand is found
 confidently, the fitted model's class labels are rasterised into the image
-(:func:`model_label_image`). Pixels where the model and the measured depth agree
+(:func:`glovedb.rasterize.model_label_image`). Pixels where the model and the measured depth agree
 within ``depth_tolerance_m`` become samples of their model class; pixels well outside
 the model's silhouette become background samples. The table is then learned from the
 samples (:func:`tracker.classify.calibrated_table`), and the procedure can repeat
@@ -18,42 +18,12 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
-from glovedb._validate import as_array
-from glovedb.camera import CameraIntrinsics
-from glovedb.mesh import HandMesh, pose_mesh
-from glovedb.pattern import LabeledVertices
-from glovedb.rasterize import rasterize_labels_and_depth
+from glovedb.rasterize import model_label_image
 from tracker.classify import ColorTable, calibrated_table
 from tracker.frames import Frame
 from tracker.pipeline import Tracker, TrackingResult
-
-
-def model_label_image(
-    mesh: HandMesh,
-    split: LabeledVertices,
-    posture_rad: ArrayLike,
-    rotation: ArrayLike,
-    translation_m: ArrayLike,
-    intrinsics: CameraIntrinsics,
-) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
-    """Class labels and depth of the posed glove model as the camera would see them.
-
-    Returns
-    -------
-    labels : (H, W) uint8
-        0 where the model is not seen.
-    depth_m : (H, W) float32
-        0 where the model is not seen.
-    """
-    R = as_array("rotation", rotation, (3, 3), np.float64, finite=True)
-    t = as_array("translation_m", translation_m, (3,), np.float64, finite=True)
-    vertices = pose_mesh(mesh, posture_rad)[split.source_vertex]
-    labels, depth = rasterize_labels_and_depth(
-        vertices, split.faces, split.labels[split.faces[:, 0]], R[None], t[None], intrinsics
-    )
-    return labels[0], depth[0]
 
 
 def calibration_samples(

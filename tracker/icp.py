@@ -26,13 +26,13 @@ not limit the accuracy.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from glovedb._validate import as_array
+from glovedb.rotations import axis_angle_to_matrix
 from tracker.generative.energy.data import nearest_of_class
 
 # Once the outlier gate is this tight the pairs are right and point-to-plane steps
@@ -146,27 +146,9 @@ def _point_to_plane_step(
     # than the rest of the step); a tiny damping keeps a flat patch solvable.
     normal = jacobian.T @ jacobian + 1e-12 * np.eye(6)
     delta = np.linalg.solve(normal, -(jacobian.T @ residual))
-    turn = _small_turn(delta[:3])
+    angle = float(np.linalg.norm(delta[:3]))
+    turn = axis_angle_to_matrix(delta[:3], angle) if angle > 0 else np.eye(3)
     return turn @ rotation, turn @ translation + delta[3:]
-
-
-def _small_turn(rotation_vector: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Rodrigues' rotation of a rotation vector (radians), the arithmetic of
-    :func:`glovedb.rotations.axis_angle_to_matrix` without its array handling, which
-    cost a quarter of an ICP iteration."""
-    angle = math.sqrt(float(rotation_vector @ rotation_vector))
-    if angle == 0.0:
-        return np.eye(3)
-    x, y, z = (float(v) / angle for v in rotation_vector)
-    c, s = math.cos(angle), math.sin(angle)
-    t = 1.0 - c
-    return np.array(
-        [
-            [c + x * x * t, x * y * t - z * s, x * z * t + y * s],
-            [y * x * t + z * s, c + y * y * t, y * z * t - x * s],
-            [z * x * t - y * s, z * y * t + x * s, c + z * z * t],
-        ]
-    )
 
 
 def color_icp(
@@ -225,8 +207,8 @@ def color_icp(
     front = np.zeros(len(model), dtype=bool)
     built_for = np.full(3, np.nan)
     for iteration in range(1, iterations + 1):
-        # Which side of the model faces the camera changes slowly: rebuild the tree
-        # of front-facing points only when the view turned by more than 3 degrees.
+        # Which side of the model faces the camera changes slowly: find it again only
+        # when the view turned by more than 3 degrees.
         camera_in_hand = -R.T @ t
         view = camera_in_hand / np.linalg.norm(camera_in_hand)
         if not np.dot(view, built_for) > np.cos(np.radians(3.0)):

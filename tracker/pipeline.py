@@ -57,6 +57,7 @@ from glovedb.mesh import HandMesh, cached_hand_mesh, pose_mesh, vertex_normals
 from glovedb.pattern import load_pattern, split_by_label
 from glovedb.posture_prior import load_posture_prior
 from glovedb.proportions import HandProportions, proportioned_mesh
+from glovedb.rasterize import model_label_image
 from glovedb.rotations import axis_angle_to_matrix
 from glovedb.search import InterpolatedPose, interpolate_pose, parse_cascade
 from glovedb.tiny_images import tiny_images_from_pixels
@@ -433,7 +434,7 @@ class Tracker(Closing):
     def _warm_up(self) -> None:
         """Run the compiled kernels once, so the first frames are not slow (numba loads
         or compiles them on first use): the search, then the ICP, the fit and the
-        visibility test on the model's own samples seen at half a metre. Without the
+        visibility test on the model's own label image seen at half a metre. Without the
         second part the first frame took 70-80 ms instead of about 30; the first pose
         comes no later, since that time is spent here instead."""
         square = np.stack(np.meshgrid(np.arange(8.0), np.arange(8.0)), -1).reshape(-1, 2)
@@ -441,8 +442,13 @@ class Tracker(Closing):
         self.index.search({size: stack[0] for size, stack in stacks.items()}, self._search_cascade)
         vertex_normals(self.model_mesh.rest_vertices_m, self.model_mesh.faces)
         pose = HandPose(np.zeros(N_JOINTS), np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, 0.5]))
-        prepared = _model_frame(PosedHand(self.samples, pose), self.settings.fit.max_points)
-        assert prepared.observation is not None
+        labels, depth = model_label_image(
+            self.mesh, self.split, pose.posture_rad, pose.rotation, pose.translation_m, KINECT_V1
+        )
+        color = np.zeros((*labels.shape, 3), np.uint8)
+        prepared = self._segmented(Frame(-1, color, depth, KINECT_V1), labels, {})
+        if prepared.observation is None:  # settings that ask for more glove than that
+            return
         looked_up = InterpolatedPose(pose.posture_rad, pose.rotation, np.ones(1), True)
         self._aligned_start(prepared, looked_up, 0.0, self.mesh)
         # The first frame's fit (from a lookup's start, estimating the proportions
@@ -467,11 +473,16 @@ class Tracker(Closing):
         Needs no earlier frame, so a reader thread can prepare the next frames while
         one is tracked (:func:`tracker.run.track_source`).
         """
-        timing: dict[str, float] = {}
         clock = time.perf_counter()
         labels = self.color_table.classify(frame.color)
+        classified = {"classify": (time.perf_counter() - clock) * 1000.0}
+        return self._segmented(frame, labels, classified)
+
+    def _segmented(
+        self, frame: Frame, labels: NDArray[np.uint8], timing: dict[str, float]
+    ) -> PreparedFrame:
+        """:meth:`prepare` of a frame already classified into ``labels``."""
         now = time.perf_counter()
-        timing["classify"] = (now - clock) * 1000.0
         region = hand_region(labels, frame.depth_m, z_range_m=self.settings.z_range_m)
         cloud = labeled_point_cloud(region, frame.intrinsics)
         observation = None
@@ -828,28 +839,6 @@ class Tracker(Closing):
             self._background.discard()
         self.index.close()
         self._blas_limit.restore_original_limits()
-
-
-def _model_frame(hand: PosedHand, max_points: int) -> PreparedFrame:
-    """A frame prepared from a posed hand model's camera-facing samples (each one glove
-    pixel of a Kinect v1 image, no color), for :meth:`Tracker._warm_up`."""
-    camera = KINECT_V1
-    points = hand.points_m[hand.facing]
-    pixels = np.rint(camera.project(points)).astype(np.int64)
-    inside = (
-        (pixels[:, 0] >= 0) & (pixels[:, 0] < camera.width)
-        & (pixels[:, 1] >= 0) & (pixels[:, 1] < camera.height)
-    )  # fmt: skip
-    pixels, points = pixels[inside], points[inside]
-    region = HandRegion(
-        pixels, hand.samples.labels[hand.facing][inside], points[:, 2].astype(np.float32)
-    )
-    depth = np.zeros((camera.height, camera.width), np.float32)
-    depth[pixels[:, 1], pixels[:, 0]] = region.depth_m
-    cloud = labeled_point_cloud(region, camera)
-    frame = Frame(-1, np.zeros((camera.height, camera.width, 3), np.uint8), depth, camera)
-    observation = observe(region, cloud, depth, camera, max_points=max_points)
-    return PreparedFrame(frame, region, cloud, observation, {})
 
 
 def _latency_ms(prepared: PreparedFrame, started: float) -> float:
