@@ -9,11 +9,12 @@ lookup, the ICP and a second fit, about 16 ms on a laptop-class core besides the
 frame's own 10: those frames would set the 99th percentile of the latency.
 
 :class:`DeferredLookup` spreads that work over the frames that follow, in the tracking
-thread: the job is a generator that yields between its steps (the lookup, the ICP, the
-fit; :meth:`tracker.pipeline.Tracker` writes it), each frame runs one step, and the
-frame ``delay_frames`` later collects the result, running whatever steps are left. So
-no frame does more than its own work and one step (at most about 7 ms), and a run
-gives the same poses on every machine. When the looked-up fit explained its frame with
+thread: the job is a generator that yields between its steps (the lookup, the ICP,
+each iteration of the fit: :func:`tracker.generative.fit.fit_frame_steps`;
+:meth:`tracker.pipeline.Tracker` writes it), each frame runs one step, and the frame
+``delay_frames`` later collects the result, running whatever steps are left. So a
+frame does its own work and one step (or, when collecting early, the steps left), and
+a run gives the same poses on every machine. When the looked-up fit explained its frame with
 a lower energy than the warm fit of that frame did, the tracker's next start carries
 the difference (:func:`carried_start`): the lookup's correction applied to the pose
 the warm fits have reached since.

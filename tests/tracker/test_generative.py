@@ -33,7 +33,7 @@ from tracker.generative.energy.reference import (
 from tracker.generative.energy.residuals import Residuals
 from tracker.generative.energy.silhouette import silhouette_residuals
 from tracker.generative.energy.temporal import temporal_residuals
-from tracker.generative.fit import FitSettings, fit_frame
+from tracker.generative.fit import FitSettings, fit_frame, fit_frame_steps
 from tracker.generative.model import (
     _PROPORTION_STEP,
     KEYPOINT_BONES,
@@ -370,6 +370,28 @@ def test_fit_recovers_a_perturbed_pose_and_posture(samples):
     keypoints = PosedHand(samples, fit.pose).keypoints_m - PosedHand(samples, truth).keypoints_m
     assert np.sqrt(np.mean(np.sum(keypoints**2, axis=1))) < 0.004
     assert fit.matched > 0.95 and fit.outside < 0.05 and fit.energy < fit.start_energy
+
+
+def test_a_stepped_fit_yields_between_iterations_and_ends_where_the_fit_ends(samples):
+    truth = _pose("pinch")
+    observation = _observation(samples, truth)
+    start = HandPose(truth.posture_rad + 0.1, truth.rotation, truth.translation_m + 0.005)
+    settings = FitSettings(iterations=4, tolerance=0.0)
+    prior = load_posture_prior()
+    whole = fit_frame(samples, observation, start, settings=settings, prior=prior)
+    steps = fit_frame_steps(samples, observation, start, settings=settings, prior=prior)
+    pauses = 0
+    while True:
+        try:
+            next(steps)
+        except StopIteration as finished:
+            stepped = finished.value
+            break
+        pauses += 1
+    assert pauses == whole.iterations - 1 == 3
+    np.testing.assert_array_equal(stepped.pose.posture_rad, whole.pose.posture_rad)
+    np.testing.assert_array_equal(stepped.pose.translation_m, whole.pose.translation_m)
+    assert stepped.energy == whole.energy < whole.start_energy
 
 
 def test_a_fit_far_from_the_data_explains_little(samples):

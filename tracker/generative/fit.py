@@ -21,6 +21,7 @@ length and its flexion explain the same points, and fitting both drifts the leng
 
 from __future__ import annotations
 
+from collections.abc import Generator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,7 +50,11 @@ from tracker.generative.energy.silhouette import silhouette_residuals
 from tracker.generative.energy.temporal import temporal_residuals
 from tracker.generative.model import N_PARAMS, HandPose, HandSamples, PosedHand
 from tracker.generative.observation import Observation
-from tracker.generative.solver import eliminated_information, levenberg_marquardt
+from tracker.generative.solver import (
+    eliminated_information,
+    levenberg_marquardt_steps,
+    run_to_end,
+)
 
 HIDDEN_EDGE_PX = 4.0
 """Pixels beyond the silhouette margin before a sample counts as hidden by an object."""
@@ -354,6 +359,33 @@ def fit_frame(
     -------
     FrameFit
     """
+    return run_to_end(
+        fit_frame_steps(
+            samples, observation, start, settings=settings, prior=prior,
+            previous_keypoints_m=previous_keypoints_m, tip_targets_m=tip_targets_m,
+            estimate_proportions=estimate_proportions,
+            proportion_information=proportion_information, hold_unseen=hold_unseen,
+        )
+    )  # fmt: skip
+
+
+def fit_frame_steps(
+    samples: HandSamples,
+    observation: Observation,
+    start: HandPose,
+    *,
+    settings: FitSettings,
+    prior: PosturePrior,
+    previous_keypoints_m: NDArray[np.float64] | None = None,
+    tip_targets_m: NDArray[np.float64] | None = None,
+    estimate_proportions: bool = False,
+    proportion_information: NDArray[np.float64] | None = None,
+    hold_unseen: bool = False,
+) -> Generator[None, None, FrameFit]:
+    """:func:`fit_frame` as a generator that yields after each solver iteration but the
+    last (:func:`tracker.generative.solver.levenberg_marquardt_steps`) and returns the
+    :class:`FrameFit`; same parameters. Run to its end, it gives what :func:`fit_frame`
+    gives."""
     anchor = samples.proportions.as_vector()
     information = (
         np.diag(initial_proportion_weights(settings) ** 2)
@@ -433,7 +465,7 @@ def fit_frame(
         factors = np.clip(state.samples.proportions.as_vector() + delta[N_PARAMS:], *FACTOR_RANGE)
         return _State(pose, state.samples.with_proportions(HandProportions.from_vector(factors)))
 
-    result = levenberg_marquardt(
+    result = yield from levenberg_marquardt_steps(
         evaluate, advance, _State(start, samples), iterations=settings.iterations,
         tolerance=settings.tolerance,
     )  # fmt: skip

@@ -10,11 +10,16 @@ and keeps the step only if the energy ``r^T r`` at the new state (residuals and
 correspondences evaluated afresh) is lower; lambda shrinks after a kept step and
 grows after a refused one (Marquardt's scaling makes it unit-free). A refused step
 costs one evaluation, a kept one is the next iteration's linearisation.
+
+:func:`levenberg_marquardt_steps` is the same solver as a generator that yields after
+each iteration, so that a caller can spread one solve over several calls (the
+tracker's deferred lookups run one iteration per frame, :mod:`tracker.background`);
+:func:`run_to_end` drives such a generator to its result.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
@@ -22,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 State = TypeVar("State")
+Result = TypeVar("Result")
 Evaluation = tuple[NDArray[np.float64], NDArray[np.float64]]
 
 _EPS = 1e-9
@@ -81,12 +87,32 @@ def levenberg_marquardt(
     -------
     SolverResult
     """
+    return run_to_end(
+        levenberg_marquardt_steps(
+            evaluate, advance, start, iterations=iterations, damping=damping, tolerance=tolerance
+        )
+    )
+
+
+def levenberg_marquardt_steps(
+    evaluate: Callable[[State], Evaluation],
+    advance: Callable[[State, NDArray[np.float64]], State],
+    start: State,
+    *,
+    iterations: int,
+    damping: float = 1e-3,
+    tolerance: float = 1e-4,
+) -> Generator[None, None, SolverResult[State]]:
+    """:func:`levenberg_marquardt` as a generator: it yields after every iteration but
+    the last and returns the :class:`SolverResult` (same parameters)."""
     state = start
     residual, jacobian = evaluate(state)
     energy = start_energy = float(residual @ residual)
     converged = False
     done = 0
     for iteration in range(1, iterations + 1):
+        if iteration > 1:
+            yield
         done = iteration
         if len(residual) == 0:
             break
@@ -110,6 +136,16 @@ def levenberg_marquardt(
         else:
             damping *= _GROW
     return SolverResult(state, energy, start_energy, done, converged)
+
+
+def run_to_end(steps: Generator[None, None, Result]) -> Result:
+    """Run a stepped computation (a generator that yields between its steps) to its end
+    and return what it returns."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as finished:
+            return finished.value
 
 
 def eliminated_information(
