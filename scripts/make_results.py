@@ -281,7 +281,7 @@ def figure_411(work: Path, frames: int | None, lines: list[str]) -> None:
 def lookup_scaling(work: Path, queries: int, lines: list[str]) -> None:
     big = work / "natural1000.h5"
     if not big.exists():
-        print("building natural1000 (756,000 entries, about 4 GB)")
+        print("building natural1000 (756,000 entries, about 0.5 GB)")
         build_database(
             load_config(config_path("db/natural1000.toml")), big, workers=os.cpu_count() or 1
         )
