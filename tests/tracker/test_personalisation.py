@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from builder.sequence import SequenceSettings, render_sequence
-from glovedb.proportions import HandProportions
+from glovedb.proportions import HandProportions, proportioned_mesh
 from tracker.evaluation import evaluate
 from tracker.generative.fit import fit_frame
 from tracker.pipeline import Tracker, TrackerSettings
@@ -21,6 +21,11 @@ pytestmark = pytest.mark.gl
 def _track(database, sequence, out, settings=None):
     with Tracker(database, settings=settings) as tracker:
         track_source(open_source(sequence), tracker, out, overlay=False, bvh=False)
+        # The mesh and skeleton follow the proportions (the mesh re-rested when asked for).
+        expected = proportioned_mesh(tracker.model_mesh, tracker.proportions)
+        np.testing.assert_array_equal(tracker.mesh.rest_vertices_m, expected.rest_vertices_m)
+        np.testing.assert_array_equal(tracker.skeleton.offsets_m, expected.skeleton.offsets_m)
+        np.testing.assert_array_equal(tracker.skeleton.lengths_m, expected.skeleton.lengths_m)
     return evaluate(out / POSES_FILE, sequence / "groundtruth.jsonl")
 
 
