@@ -52,8 +52,8 @@ from tracker.generative.model import N_PARAMS, HandPose, HandSamples, PosedHand
 from tracker.generative.observation import Observation
 from tracker.generative.solver import (
     eliminated_information,
+    in_one_call,
     levenberg_marquardt_steps,
-    run_to_end,
 )
 
 HIDDEN_EDGE_PX = 4.0
@@ -318,7 +318,7 @@ def initial_proportion_weights(settings: FitSettings) -> NDArray[np.float64]:
     return weights
 
 
-def fit_frame(
+def fit_frame_steps(
     samples: HandSamples,
     observation: Observation,
     start: HandPose,
@@ -330,8 +330,10 @@ def fit_frame(
     estimate_proportions: bool = False,
     proportion_information: NDArray[np.float64] | None = None,
     hold_unseen: bool = False,
-) -> FrameFit:
-    """Fit the hand to one frame from a start pose (module docstring).
+) -> Generator[None, None, FrameFit]:
+    """Fit the hand to one frame from a start pose (module docstring), yielding after
+    each solver iteration but the last (:func:`fit_frame` runs it in one call; the
+    tracker's deferred lookups spread it over frames, :mod:`tracker.background`).
 
     Parameters
     ----------
@@ -358,34 +360,8 @@ def fit_frame(
     Returns
     -------
     FrameFit
+        What the generator returns.
     """
-    return run_to_end(
-        fit_frame_steps(
-            samples, observation, start, settings=settings, prior=prior,
-            previous_keypoints_m=previous_keypoints_m, tip_targets_m=tip_targets_m,
-            estimate_proportions=estimate_proportions,
-            proportion_information=proportion_information, hold_unseen=hold_unseen,
-        )
-    )  # fmt: skip
-
-
-def fit_frame_steps(
-    samples: HandSamples,
-    observation: Observation,
-    start: HandPose,
-    *,
-    settings: FitSettings,
-    prior: PosturePrior,
-    previous_keypoints_m: NDArray[np.float64] | None = None,
-    tip_targets_m: NDArray[np.float64] | None = None,
-    estimate_proportions: bool = False,
-    proportion_information: NDArray[np.float64] | None = None,
-    hold_unseen: bool = False,
-) -> Generator[None, None, FrameFit]:
-    """:func:`fit_frame` as a generator that yields after each solver iteration but the
-    last (:func:`tracker.generative.solver.levenberg_marquardt_steps`) and returns the
-    :class:`FrameFit`; same parameters. Run to its end, it gives what :func:`fit_frame`
-    gives."""
     anchor = samples.proportions.as_vector()
     information = (
         np.diag(initial_proportion_weights(settings) ** 2)
@@ -491,3 +467,6 @@ def fit_frame_steps(
         hidden=hidden,
         proportion_information=information_after,
     )
+
+
+fit_frame = in_one_call(fit_frame_steps, "fit_frame")

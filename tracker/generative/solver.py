@@ -11,23 +11,24 @@ correspondences evaluated afresh) is lower; lambda shrinks after a kept step and
 grows after a refused one (Marquardt's scaling makes it unit-free). A refused step
 costs one evaluation, a kept one is the next iteration's linearisation.
 
-:func:`levenberg_marquardt_steps` is the same solver as a generator that yields after
-each iteration, so that a caller can spread one solve over several calls (the
-tracker's deferred lookups run one iteration per frame, :mod:`tracker.background`);
-:func:`run_to_end` drives such a generator to its result.
+:func:`levenberg_marquardt_steps` is the solver as a generator that yields after each
+iteration, so that a caller can spread one solve over several calls (the tracker's
+deferred lookups run one iteration per frame, :mod:`tracker.background`);
+:func:`levenberg_marquardt` runs it in one call (:func:`in_one_call`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Generator
 from dataclasses import dataclass
-from typing import Generic, TypeVar
+from typing import Generic, ParamSpec, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 State = TypeVar("State")
 Result = TypeVar("Result")
+Params = ParamSpec("Params")
 Evaluation = tuple[NDArray[np.float64], NDArray[np.float64]]
 
 _EPS = 1e-9
@@ -58,7 +59,7 @@ class SolverResult(Generic[State]):
     converged: bool
 
 
-def levenberg_marquardt(
+def levenberg_marquardt_steps(
     evaluate: Callable[[State], Evaluation],
     advance: Callable[[State, NDArray[np.float64]], State],
     start: State,
@@ -66,8 +67,9 @@ def levenberg_marquardt(
     iterations: int,
     damping: float = 1e-3,
     tolerance: float = 1e-4,
-) -> SolverResult[State]:
-    """Minimise ``r(state)^T r(state)`` (module docstring).
+) -> Generator[None, None, SolverResult[State]]:
+    """Minimise ``r(state)^T r(state)`` (module docstring), yielding after every
+    iteration but the last (:func:`levenberg_marquardt` runs it in one call).
 
     Parameters
     ----------
@@ -86,25 +88,8 @@ def levenberg_marquardt(
     Returns
     -------
     SolverResult
+        What the generator returns.
     """
-    return run_to_end(
-        levenberg_marquardt_steps(
-            evaluate, advance, start, iterations=iterations, damping=damping, tolerance=tolerance
-        )
-    )
-
-
-def levenberg_marquardt_steps(
-    evaluate: Callable[[State], Evaluation],
-    advance: Callable[[State, NDArray[np.float64]], State],
-    start: State,
-    *,
-    iterations: int,
-    damping: float = 1e-3,
-    tolerance: float = 1e-4,
-) -> Generator[None, None, SolverResult[State]]:
-    """:func:`levenberg_marquardt` as a generator: it yields after every iteration but
-    the last and returns the :class:`SolverResult` (same parameters)."""
     state = start
     residual, jacobian = evaluate(state)
     energy = start_energy = float(residual @ residual)
@@ -146,6 +131,24 @@ def run_to_end(steps: Generator[None, None, Result]) -> Result:
             next(steps)
         except StopIteration as finished:
             return finished.value
+
+
+def in_one_call(
+    stepped: Callable[Params, Generator[None, None, Result]], name: str
+) -> Callable[Params, Result]:
+    """The function ``name`` that runs ``stepped``'s generator to its end
+    (:func:`run_to_end`): same parameters, returns what the generator returns."""
+
+    def run(*args: Params.args, **kwargs: Params.kwargs) -> Result:
+        return run_to_end(stepped(*args, **kwargs))
+
+    run.__name__ = run.__qualname__ = name
+    run.__module__ = stepped.__module__
+    run.__doc__ = f":func:`{stepped.__name__}` run to its end in one call (same parameters)."
+    return run
+
+
+levenberg_marquardt = in_one_call(levenberg_marquardt_steps, "levenberg_marquardt")
 
 
 def eliminated_information(
