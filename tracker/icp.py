@@ -22,6 +22,11 @@ sampled by the vertices of the skinned mesh (about 2-3 mm apart): "closest point
 a front-facing triangle of the same color" is the closest vertex, and the point-to-
 plane steps measure the distance to its tangent plane, so the vertex spacing does
 not limit the accuracy.
+
+The iterations run compiled (:mod:`tracker._icp_kernels`): on the 23 lookups of a
+tracked Tr3 sequence 3.0 ms per ICP against 6.0 ms for the same loop in NumPy, whose
+twenty-odd small array operations per iteration cost more than the pairing; the poses
+agree to 1e-5 degrees.
 """
 
 from __future__ import annotations
@@ -32,8 +37,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from glovedb._validate import as_array
-from glovedb.rotations import axis_angle_to_matrix
-from tracker.generative.energy.data import nearest_of_class
+from tracker import _icp_kernels
+from tracker.generative.energy.data import CELL_M
 
 # Once the outlier gate is this tight the pairs are right and point-to-plane steps
 # (which converge in a few iterations and are not limited by the vertex spacing) take
@@ -129,28 +134,6 @@ def batch_rigid_fit(
     return rotation, target_mean - np.einsum("hij,hj->hi", rotation, source_mean)
 
 
-def _point_to_plane_step(
-    source: NDArray[np.float64],
-    source_normals: NDArray[np.float64],
-    target: NDArray[np.float64],
-    rotation: NDArray[np.float64],
-    translation: NDArray[np.float64],
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """One linearised least-squares step on the distances of the targets to the
-    model's tangent planes; returns the updated pose."""
-    points = source @ rotation.T + translation
-    normals = source_normals @ rotation.T
-    jacobian = np.concatenate([np.cross(points, normals), normals], axis=1)
-    residual = np.einsum("ij,ij->i", points - target, normals)
-    # Normal equations: 6 unknowns against hundreds of pairs (lstsq's SVD costs more
-    # than the rest of the step); a tiny damping keeps a flat patch solvable.
-    normal = jacobian.T @ jacobian + 1e-12 * np.eye(6)
-    delta = np.linalg.solve(normal, -(jacobian.T @ residual))
-    angle = float(np.linalg.norm(delta[:3]))
-    turn = axis_angle_to_matrix(delta[:3], angle) if angle > 0 else np.eye(3)
-    return turn @ rotation, turn @ translation + delta[3:]
-
-
 def color_icp(
     observed_m: ArrayLike,
     observed_labels: ArrayLike,
@@ -199,44 +182,10 @@ def color_icp(
     t = as_array("translation_m", translation_m, (3,), np.float64, finite=True).copy()
     # Only observed points of a class the model has can pair.
     rows = np.flatnonzero(np.isin(observed_classes, model_classes))
-    row_classes = observed_classes[rows].astype(np.uint8)
-    model_labels_u8 = model_classes.astype(np.uint8)
-
-    cost, inliers, previous = np.inf, 0.0, np.inf
-    gate = max_distance_m
-    front = np.zeros(len(model), dtype=bool)
-    built_for = np.full(3, np.nan)
-    for iteration in range(1, iterations + 1):
-        # Which side of the model faces the camera changes slowly: find it again only
-        # when the view turned by more than 3 degrees.
-        camera_in_hand = -R.T @ t
-        view = camera_in_hand / np.linalg.norm(camera_in_hand)
-        if not np.dot(view, built_for) > np.cos(np.radians(3.0)):
-            front = np.einsum("ij,ij->i", normals, model - camera_in_hand) < 0
-            built_for = view
-        if not front.any() or len(rows) == 0:
-            break
-        in_hand = (observed[rows] - t) @ R  # R^T (p - t) for every row
-        distance, matched = nearest_of_class(
-            in_hand, row_classes, model, model_labels_u8, gate_m=np.inf, candidates=front
-        )
-        source, target = model[matched], observed[rows]  # row -1 where unpaired (inf)
-        paired = np.isfinite(distance)
-        if not paired.any():
-            break
-        gate = min(gate, max(3.0 * float(np.median(distance[paired])), 0.005))
-        keep = distance < gate
-        if keep.sum() < 6:
-            break
-        source, target, source_normals = source[keep], target[keep], normals[matched[keep]]
-        if gate > _PLANE_GATE_M:
-            R, t = rigid_fit(source, target)
-        else:
-            R, t = _point_to_plane_step(source, source_normals, target, R, t)
-        residual = source @ R.T + t - target
-        cost = float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))
-        inliers = float(keep.sum()) / len(observed)
-        if abs(previous - cost) < tolerance_m:
-            return IcpResult(R, t, cost, inliers, iteration, True)
-        previous = cost
-    return IcpResult(R, t, cost, inliers, iterations, False)
+    cost, inliers, done, converged = _icp_kernels.color_icp(
+        np.ascontiguousarray(observed[rows]), observed_classes[rows].astype(np.uint8),
+        np.ascontiguousarray(model), np.ascontiguousarray(normals),
+        model_classes.astype(np.uint8), R, t, iterations, float(max_distance_m),
+        float(tolerance_m), _PLANE_GATE_M, CELL_M, len(observed),
+    )  # fmt: skip
+    return IcpResult(R, t, float(cost), float(inliers), int(done), bool(converged))

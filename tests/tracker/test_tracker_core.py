@@ -12,6 +12,7 @@ from glovedb.mesh import pose_mesh, vertex_normals
 from glovedb.pattern import load_pattern, split_by_label
 from glovedb.postures import named_posture
 from glovedb.rotations import axis_angle_to_matrix, geodesic_angle
+from tracker import _icp_kernels
 from tracker.classify import calibrated_table, load_table, nominal_table
 from tracker.frames import Frame
 from tracker.icp import color_icp, rigid_fit
@@ -161,6 +162,28 @@ def test_rigid_fit_recovers_a_transform():
     fitted_rotation, fitted_translation = rigid_fit(points, target, weights)
     np.testing.assert_allclose(fitted_rotation, rotation, atol=1e-12)
     np.testing.assert_allclose(fitted_translation, [0.1, -0.2, 0.5], atol=1e-12)
+
+
+def test_the_compiled_icp_steps_solve_what_their_numpy_forms_solve():
+    rng = np.random.default_rng(2)
+    source = rng.normal(size=(40, 3))
+    rotation = axis_angle_to_matrix([0.3, -0.5, 0.8], 0.7)
+    target = source @ rotation.T + [0.1, -0.2, 0.5] + rng.normal(scale=0.01, size=(40, 3))
+    kabsch_rotation, kabsch_translation = np.eye(3), np.zeros(3)
+    _icp_kernels._kabsch(source, target, kabsch_rotation, kabsch_translation)
+    expected_rotation, expected_translation = rigid_fit(source, target)
+    np.testing.assert_allclose(kabsch_rotation, expected_rotation, atol=1e-12)
+    np.testing.assert_allclose(kabsch_translation, expected_translation, atol=1e-12)
+    # Point-to-plane steps from a nearby pose reach the exact map of noise-free pairs.
+    normals = rng.normal(size=(40, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    exact = source @ rotation.T + [0.1, -0.2, 0.5]
+    step_rotation = axis_angle_to_matrix([1.0, 0.2, -0.3], np.radians(2.0)) @ rotation
+    step_translation = np.array([0.103, -0.198, 0.497])
+    for _ in range(4):
+        _icp_kernels._point_to_plane_step(source, normals, exact, step_rotation, step_translation)
+    np.testing.assert_allclose(step_rotation, rotation, atol=1e-9)
+    np.testing.assert_allclose(step_translation, [0.1, -0.2, 0.5], atol=1e-9)
 
 
 @pytest.mark.gl

@@ -31,7 +31,7 @@ from tracker.generative.model import PosedHand
 
 NAME = "data"
 
-_CELL_M = 0.006
+CELL_M = 0.006
 """Side of the grid cells :func:`nearest_of_class` bins the model points into: about
 two samples apart, so that a query's nearest sample is mostly within its own and the
 eight cells around (any side gives the same pairs; this one was fastest)."""
@@ -110,7 +110,7 @@ def _pair(
         np.ascontiguousarray(candidates, dtype=bool),
         np.ascontiguousarray(observed, dtype=np.float64),
         np.ascontiguousarray(observed_labels, dtype=np.uint8), float(gate_m), float(depth_scale),
-        _CELL_M,
+        CELL_M,
         nearest, distance,
     )  # fmt: skip
     return distance, nearest
