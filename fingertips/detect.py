@@ -290,7 +290,7 @@ def fingertip_votes(
     -------
     Votes
     """
-    return _frame_votes(depth_m, intrinsics_array(intrinsics), model, config)[0]
+    return _frame_votes(depth_m, intrinsics_array(intrinsics), model, config)
 
 
 def _frame_votes(
@@ -298,12 +298,10 @@ def _frame_votes(
     camera: NDArray[np.float64],
     model: FingertipForest,
     config: DetectorConfig,
-) -> tuple[Votes, NDArray[np.float32], NDArray[np.float32]]:
-    """The votes of :func:`fingertip_votes`, the probe image of the hand depth they come
-    from (:func:`~fingertips.features.probe_image`, made once per frame) and
-    that hand depth (:func:`hand_depth`)."""
+) -> Votes:
+    """The votes of :func:`fingertip_votes`."""
     masked = _frame_hand_depth(depth_m, camera, model, config)
-    return (*_hand_votes(masked, camera, model, config), masked)
+    return _hand_votes(masked, camera, model, config)[0]
 
 
 def _frame_hand_depth(
@@ -329,7 +327,9 @@ def _hand_votes(
     model: FingertipForest,
     config: DetectorConfig,
 ) -> tuple[Votes, NDArray[np.float32]]:
-    """The votes and probe image of :func:`_frame_votes` from the hand depth."""
+    """The votes of :func:`fingertip_votes` and the probe image they come from
+    (:func:`~fingertips.features.probe_image`, made once per frame) from the hand depth
+    (:func:`_frame_hand_depth`)."""
     stride = config.stride
     if config.pixel_spacing_m > 0:
         stride = stride_for_spacing(masked, float(camera[0]), spacing_m=config.pixel_spacing_m)
@@ -505,7 +505,7 @@ def detect_fingertips(
         )
     depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
     if model.verifier is None and config.candidates == "forest":
-        votes = _frame_votes(depth, camera, model, config)[0]
+        votes = _frame_votes(depth, camera, model, config)
         peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
         detections = _candidate_detections(forest_candidates(peaks), None, camera)
     elif model.verifier is None:

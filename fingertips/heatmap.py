@@ -382,6 +382,12 @@ def heat_peak_features(
 # --- the stage ----------------------------------------------------------------------
 
 
+def onnx_bytes(network_onnx: bytes | NDArray[np.uint8]) -> bytes:
+    """An ONNX network as bytes, from bytes or the ``(B,) uint8`` array a model file
+    stores."""
+    return network_onnx if isinstance(network_onnx, bytes) else network_onnx.tobytes()
+
+
 class HeatmapNetwork:
     """An ONNX heatmap network run by onnxruntime on the turned and mirrored crops.
 
@@ -412,7 +418,7 @@ class HeatmapNetwork:
         options.intra_op_num_threads = 1  # one thread beside the forest: see the docstring
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         options.log_severity_level = 3
-        content = network_onnx if isinstance(network_onnx, bytes) else network_onnx.tobytes()
+        content = onnx_bytes(network_onnx)
         try:
             self._session = onnxruntime.InferenceSession(
                 content, options, providers=["CPUExecutionProvider"]

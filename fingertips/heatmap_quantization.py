@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fingertips.heatmap import crop_views
+from fingertips.heatmap import crop_views, onnx_bytes
 
 QUANTIZED_OP = b"QuantizeLinear"
 """An operator that only a quantized (QDQ) network holds: its name appears in the
@@ -38,8 +38,7 @@ ONNX bytes."""
 
 def is_quantized(network_onnx: bytes | NDArray[np.uint8]) -> bool:
     """Whether an ONNX heatmap network is already quantized (holds QDQ operators)."""
-    content = network_onnx if isinstance(network_onnx, bytes) else network_onnx.tobytes()
-    return QUANTIZED_OP in content
+    return QUANTIZED_OP in onnx_bytes(network_onnx)
 
 
 def quantize_network(
@@ -69,7 +68,8 @@ def quantize_network(
         When the network is quantized already, there are no crops, or the ``onnx``
         package is missing.
     """
-    if is_quantized(network_onnx):
+    content = onnx_bytes(network_onnx)
+    if is_quantized(content):
         raise ValueError("heatmap network: already quantized")
     images = np.asarray(crops, dtype=np.float32)
     if images.ndim != 3 or len(images) == 0:
@@ -97,7 +97,6 @@ def quantize_network(
         def get_next(self) -> dict[str, NDArray[np.float32]] | None:
             return next(self._views, None)
 
-    content = network_onnx if isinstance(network_onnx, bytes) else network_onnx.tobytes()
     with tempfile.TemporaryDirectory() as folder:
         source, prepared, target = (Path(folder) / name for name in ("f.onnx", "p.onnx", "q.onnx"))
         source.write_bytes(content)

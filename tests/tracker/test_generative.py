@@ -43,7 +43,7 @@ from tracker.generative.model import (
     hand_samples,
 )
 from tracker.generative.observation import look_up
-from tracker.generative.solver import levenberg_marquardt
+from tracker.generative.solver import levenberg_marquardt_steps, run_to_end
 
 
 @pytest.fixture(scope="module")
@@ -347,8 +347,10 @@ def test_solver_minimises_a_known_least_squares_problem():
             [[-1.0, 0.0], [-20 * x[0], 10.0]]
         )
 
-    result = levenberg_marquardt(
-        evaluate, lambda x, d: x + d, np.array([-1.2, 1.0]), iterations=100
+    result = run_to_end(
+        levenberg_marquardt_steps(
+            evaluate, lambda x, d: x + d, np.array([-1.2, 1.0]), iterations=100
+        )
     )
     np.testing.assert_allclose(result.state, [1.0, 1.0], atol=1e-4)
     assert result.energy < 1e-8 < result.start_energy

@@ -3,7 +3,7 @@
 ``E = E_data + E_silhouette + E_prior + E_reference + E_limits + E_collision +
 E_temporal + E_fingertips`` (one module each in :mod:`tracker.generative.energy`),
 minimised over the 26 unknowns of :mod:`tracker.generative.model` by
-:func:`tracker.generative.solver.levenberg_marquardt`; while a user's hand
+:func:`tracker.generative.solver.levenberg_marquardt_steps`; while a user's hand
 proportions are being estimated, over the 7 proportions as well.
 
 The proportions are estimated over many frames by accumulating information, as a

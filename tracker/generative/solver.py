@@ -14,7 +14,7 @@ costs one evaluation, a kept one is the next iteration's linearisation.
 :func:`levenberg_marquardt_steps` is the solver as a generator that yields after each
 iteration, so that a caller can spread one solve over several calls (the tracker's
 deferred lookups run one iteration per frame, :mod:`tracker.background`);
-:func:`levenberg_marquardt` runs it in one call (:func:`in_one_call`).
+:func:`run_to_end` and :func:`in_one_call` run such a generator in one call.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ _SHRINK, _GROW = 0.3, 5.0
 
 @dataclass(frozen=True)
 class SolverResult(Generic[State]):
-    """Outcome of :func:`levenberg_marquardt`.
+    """Outcome of :func:`levenberg_marquardt_steps`.
 
     Attributes
     ----------
@@ -69,7 +69,7 @@ def levenberg_marquardt_steps(
     tolerance: float = 1e-4,
 ) -> Generator[None, None, SolverResult[State]]:
     """Minimise ``r(state)^T r(state)`` (module docstring), yielding after every
-    iteration but the last (:func:`levenberg_marquardt` runs it in one call).
+    iteration but the last.
 
     Parameters
     ----------
@@ -146,9 +146,6 @@ def in_one_call(
     run.__module__ = stepped.__module__
     run.__doc__ = f":func:`{stepped.__name__}` run to its end in one call (same parameters)."
     return run
-
-
-levenberg_marquardt = in_one_call(levenberg_marquardt_steps, "levenberg_marquardt")
 
 
 def eliminated_information(
