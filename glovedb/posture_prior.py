@@ -7,11 +7,29 @@ plus ``floor_deg**2`` on every joint, so that postures off the synergies (a sing
 finger bent alone) are unlikely but not forbidden. The prior is used through its
 whitening matrix ``W`` (``W.T @ W`` is the inverse covariance): the Mahalanobis
 residual of a posture is ``W @ (theta - mean)``.
+
+**Task postures.** A database is built for a task (open hand, pinch and power grasp
+for teleoperation), and its postures say which postures the task holds. The single
+Gaussian cannot know them: along the directions the camera barely observes (the
+distal joints, the thumb of a power grasp seen from the back) it pulls every posture
+toward the natural mean, which is not the task's grasp. :func:`with_task_postures`
+turns the prior into a max-mixture (Olson and Agarwal, "Inference on networks of
+mixtures for robust robot mapping", RSS 2012): the natural Gaussian, and one narrower
+Gaussian per task posture ``t_k`` with the same shape, ``spread`` times the natural
+standard deviations. A posture pays the cheapest of
+
+    |W (theta - mean)|^2        and        |W (theta - t_k)|^2 / spread^2 + offset,
+
+so near a task posture the prior holds the unobserved directions at the task's
+values, and a posture far from every task posture (a finger moved alone, a grasp the
+database does not hold) pays what its naturalness says, as before. The residual is
+that of the cheapest component (:meth:`PosturePrior.whitened`); the energy is
+continuous where the choice changes.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -27,22 +45,89 @@ PRIOR_FILE = "hand/posture_prior.npz"
 
 @dataclass(frozen=True)
 class PosturePrior:
-    """Mean and whitening matrix of a Gaussian over the 20 joint angles.
+    """Mean and whitening matrix of a Gaussian over the 20 joint angles, and the
+    task postures that make it a max-mixture (module docstring).
 
     Attributes
     ----------
     mean_rad : (20,) float64
     whitening : (20, 20) float64
         Per radian; ``whitening @ (theta - mean)`` is standard normal under the prior.
+    task_postures_rad : (K, 20) float64
+        Centres of the task components; ``K = 0`` is the single Gaussian.
+    task_spread : float
+        Standard deviations of a task component relative to the natural ones.
+    task_offset : float
+        What choosing a task component costs, in squared standard deviations.
     """
 
     mean_rad: NDArray[np.float64]
     whitening: NDArray[np.float64]
+    task_postures_rad: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, N_JOINTS)))
+    task_spread: float = 1.0
+    task_offset: float = 0.0
 
     def residual(self, posture_rad: ArrayLike) -> NDArray[np.float64]:
-        """``(20,)`` Mahalanobis residual of a posture."""
+        """``(20,)`` Mahalanobis residual of a posture under the natural Gaussian."""
         posture = as_array("posture_rad", posture_rad, (N_JOINTS,), np.float64)
         return self.whitening @ (posture - self.mean_rad)
+
+    def whitened(self, posture_rad: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Residual of the cheapest component and its whitening matrix.
+
+        Parameters
+        ----------
+        posture_rad : (20,) float
+
+        Returns
+        -------
+        residual : (21,) float64
+            The component's Mahalanobis residual and, last, the square root of its
+            offset (0 for the natural Gaussian): ``residual @ residual`` is the
+            posture's cost.
+        whitening : (20, 20) float64
+            The residual's derivative by the posture (its last entry is constant).
+        """
+        posture = as_array("posture_rad", posture_rad, (N_JOINTS,), np.float64)
+        residual = self.whitening @ (posture - self.mean_rad)
+        if len(self.task_postures_rad) == 0:
+            return np.append(residual, 0.0), self.whitening
+        whitening = self.whitening / self.task_spread
+        task = (posture - self.task_postures_rad) @ whitening.T
+        costs = np.einsum("ij,ij->i", task, task)
+        best = int(np.argmin(costs))
+        if costs[best] + self.task_offset < residual @ residual:
+            return np.append(task[best], np.sqrt(self.task_offset)), whitening
+        return np.append(residual, 0.0), self.whitening
+
+
+def with_task_postures(
+    prior: PosturePrior, postures_rad: ArrayLike, *, spread: float, offset: float
+) -> PosturePrior:
+    """The prior with a narrower component at each task posture (module docstring).
+
+    Parameters
+    ----------
+    prior : PosturePrior
+    postures_rad : (K, 20) float
+        The task's postures (a database's), radians.
+    spread : float
+        Standard deviations of a task component relative to the natural ones (> 0).
+    offset : float
+        What choosing a task component costs, squared standard deviations (>= 0).
+
+    Returns
+    -------
+    PosturePrior
+    """
+    postures = as_array("postures_rad", postures_rad, (None, N_JOINTS), np.float64, finite=True)
+    if not spread > 0:
+        raise ValueError(f"spread: expected > 0, got {spread}")
+    if not offset >= 0:
+        raise ValueError(f"offset: expected >= 0, got {offset}")
+    unique = np.unique(postures, axis=0)
+    return replace(prior, task_postures_rad=unique, task_spread=float(spread),
+                   task_offset=float(offset))  # fmt: skip
 
 
 def fit_posture_prior(postures_rad: ArrayLike, *, floor_deg: float) -> PosturePrior:

@@ -55,7 +55,7 @@ from glovedb.hand_model import (
 from glovedb.lookup import DatabaseIndex, default_cascade
 from glovedb.mesh import HandMesh, cached_hand_mesh, pose_mesh, vertex_normals
 from glovedb.pattern import load_pattern, split_by_label
-from glovedb.posture_prior import load_posture_prior
+from glovedb.posture_prior import load_posture_prior, with_task_postures
 from glovedb.proportions import HandProportions, proportioned_mesh
 from glovedb.rasterize import model_label_image
 from glovedb.rotations import axis_angle_to_matrix
@@ -383,6 +383,13 @@ class Tracker(Closing):
         )
         self.split = split_by_label(self.model_mesh, pattern)
         self.prior = load_posture_prior()
+        if self.settings.fit.task_prior_spread > 0:
+            self.prior = with_task_postures(
+                self.prior,
+                self.index.postures_rad,
+                spread=self.settings.fit.task_prior_spread,
+                offset=self.settings.fit.task_prior_offset,
+            )
         self._model_samples = hand_samples(
             self.model_mesh, self.split, spacing=self.settings.fit.sample_spacing
         )

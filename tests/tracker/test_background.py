@@ -141,8 +141,8 @@ def test_a_deferred_lookup_corrects_a_stuck_fit_two_frames_later(
     # frame, frame 1 itself gets there: test_tracker_core).
     assert "lookup" not in results[1].timing_ms
     assert all("background" in results[i].timing_ms for i in (1, 2, 3))
-    assert min(errors[1:3]) > 20.0  # 23 deg
-    assert max(errors[3:]) < 18.5  # 17 deg, the database's nearest fist
+    assert min(errors[1:3]) > 20.0  # 22 deg
+    assert max(errors[3:]) < 19.5  # 19 deg: the database holds no fist, its power grasp is near
     # Collected at a fixed frame: the same poses on every run, however fast the machine.
     again = run()
     for first, second in zip(results, again, strict=True):

@@ -15,7 +15,7 @@ from helpers import model_observation, model_pose
 from glovedb.hand_model import JOINT_NAMES, make_skeleton
 from glovedb.mesh import HandMesh, make_hand_mesh, skin, skinning_matrices
 from glovedb.pattern import load_pattern, split_by_label
-from glovedb.posture_prior import fit_posture_prior, load_posture_prior
+from glovedb.posture_prior import fit_posture_prior, load_posture_prior, with_task_postures
 from glovedb.postures import named_posture
 from glovedb.proportions import HandProportions, proportioned_mesh
 from glovedb.rotations import axis_angle_to_matrix, geodesic_angle
@@ -175,6 +175,11 @@ def test_prior_limits_temporal_and_fingertip_jacobians(samples):
     pose = _pose("power")
     prior = load_posture_prior()
     _check_term(lambda p: prior_residuals(PosedHand(samples, p), prior, weight=0.3), pose)
+    near = HandPose(pose.posture_rad + np.radians(2.0) * np.cos(np.arange(20)), pose.rotation,
+                    pose.translation_m)  # fmt: skip
+    task = with_task_postures(prior, [pose.posture_rad], spread=0.5, offset=0.5)
+    assert prior_residuals(PosedHand(samples, near), task, weight=0.3).values[-1] > 0
+    _check_term(lambda p: prior_residuals(PosedHand(samples, p), task, weight=0.3), near)
     beyond = HandPose(
         pose.posture_rad + np.radians(120.0) * (np.arange(20) % 3 == 1),
         pose.rotation,
@@ -300,6 +305,23 @@ def test_a_finger_the_data_does_not_see_is_held(samples):
         assert fit.hidden is not None and fit.hidden[:4].all() == (label == "held")
         moved[label] = np.degrees(np.abs(fit.pose.posture_rad[:4] - start_posture[:4]).max())
     assert moved["held"] < 1.0 < moved["free"]
+
+
+def test_task_postures_hold_what_the_camera_does_not_see(samples):
+    # A power grasp seen from the back: the distal joints and the thumb barely change
+    # what the camera sees, and the natural prior pulls them toward its mean. With the
+    # database's postures in the prior they stay at the task's grasp.
+    truth = _pose("power")
+    observation = _observation(samples, truth)
+    prior = load_posture_prior()
+    task = with_task_postures(prior, [named_posture(n) for n in ("open", "pinch", "power")],
+                              spread=0.5, offset=0.5)  # fmt: skip
+    errors = {}
+    for name, used in (("natural", prior), ("task", task)):
+        fit = fit_frame(samples, observation, truth, settings=FitSettings(iterations=10),
+                        prior=used)  # fmt: skip
+        errors[name] = np.degrees(np.abs(fit.pose.posture_rad - truth.posture_rad).mean())
+    assert errors["task"] < 0.5 * errors["natural"]
 
 
 def test_fingertips_without_targets_add_nothing(samples):

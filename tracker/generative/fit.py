@@ -110,6 +110,15 @@ class FitSettings:
         Camera-facing model samples examined by the silhouette term.
     prior_weight : float
         Per standard deviation of the posture prior.
+    task_prior_spread : float
+        Standard deviations of the prior's component around each posture of the
+        database (the task's postures, :mod:`glovedb.posture_prior`), relative to the
+        natural prior's; 0 leaves the database's postures out of the prior. Chosen
+        with ``task_prior_offset`` on Tr1-Tr5 rendered with other noise seeds and on
+        free finger motion tracked with DB_20postures (docs/tracker.md).
+    task_prior_offset : float
+        What explaining a posture by a task posture instead of the natural prior
+        costs, squared standard deviations of the prior.
     limit_weight : float
         Per radian beyond a joint limit.
     collision_weight : float
@@ -162,6 +171,8 @@ class FitSettings:
     depth_margin_m: float = 0.012
     silhouette_samples: int = 400
     prior_weight: float = 0.3
+    task_prior_spread: float = 0.5
+    task_prior_offset: float = 0.5
     limit_weight: float = 30.0
     collision_weight: float = 300.0
     temporal_weight: float = 15.0

@@ -1,9 +1,10 @@
-"""Posture prior: natural postures are likely (thesis ch. 6.3, the PCA prior).
+"""Posture prior: natural postures, and the task's, are likely (thesis ch. 6.3, the PCA prior).
 
-The residual is ``weight * W @ (theta - mean)``, the Mahalanobis residual of the
-posture under the Gaussian of :mod:`glovedb.posture_prior`, which was learned from
-the project's natural postures. It is not a pull toward the database's nearest
-posture: a posture no database holds costs what its naturalness says.
+The residual is ``weight`` times the Mahalanobis residual of the posture under the
+cheapest component of :mod:`glovedb.posture_prior`'s max-mixture: the Gaussian
+learned from the project's natural postures, or a narrower one around a posture of
+the task the database was built for. It is not a pull toward the database's nearest
+posture: a posture far from every task posture costs what its naturalness says.
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ NAME = "prior"
 
 
 def prior_residuals(hand: PosedHand, prior: PosturePrior, *, weight: float) -> Residuals:
-    """``(20,)`` weighted Mahalanobis residuals of the hand's posture.
+    """``(21,)`` weighted Mahalanobis residuals of the hand's posture (the last is the
+    chosen component's offset, constant).
 
     Parameters
     ----------
@@ -27,6 +29,7 @@ def prior_residuals(hand: PosedHand, prior: PosturePrior, *, weight: float) -> R
     weight : float
         Per standard deviation.
     """
-    jacobian = np.zeros((len(prior.mean_rad), N_PARAMS))
-    jacobian[:, 6:] = weight * prior.whitening
-    return Residuals(NAME, weight * prior.residual(hand.pose.posture_rad), jacobian)
+    residual, whitening = prior.whitened(hand.pose.posture_rad)
+    jacobian = np.zeros((len(residual), N_PARAMS))
+    jacobian[:-1, 6:] = weight * whitening
+    return Residuals(NAME, weight * residual, jacobian)
