@@ -86,7 +86,8 @@ class PosturePrior:
             offset (0 for the natural Gaussian): ``residual @ residual`` is the
             posture's cost.
         whitening : (20, 20) float64
-            The residual's derivative by the posture (its last entry is constant).
+            The derivative of the residual's first 20 entries by the posture (the
+            last is constant).
         """
         posture = as_array("posture_rad", posture_rad, (N_JOINTS,), np.float64)
         residual = self.whitening @ (posture - self.mean_rad)
