@@ -66,6 +66,13 @@ class PosturePrior:
     task_postures_rad: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, N_JOINTS)))
     task_spread: float = 1.0
     task_offset: float = 0.0
+    _task_whitened: NDArray[np.float64] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        # The task centres whitened once: a posture's residual to centre k is then
+        # ``W theta / spread - centre_k``, one matrix-vector product per posture.
+        whitened = self.task_postures_rad @ self.whitening.T / self.task_spread
+        object.__setattr__(self, "_task_whitened", whitened)
 
     def residual(self, posture_rad: ArrayLike) -> NDArray[np.float64]:
         """``(20,)`` Mahalanobis residual of a posture under the natural Gaussian."""
@@ -94,7 +101,7 @@ class PosturePrior:
         if len(self.task_postures_rad) == 0:
             return np.append(residual, 0.0), self.whitening
         whitening = self.whitening / self.task_spread
-        task = (posture - self.task_postures_rad) @ whitening.T
+        task = whitening @ posture - self._task_whitened
         costs = np.einsum("ij,ij->i", task, task)
         best = int(np.argmin(costs))
         if costs[best] + self.task_offset < residual @ residual:

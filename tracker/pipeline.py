@@ -383,12 +383,14 @@ class Tracker(Closing):
         )
         self.split = split_by_label(self.model_mesh, pattern)
         self.prior = load_posture_prior()
-        if self.settings.fit.task_prior_spread > 0:
+        fit = self.settings.fit
+        task_postures = np.unique(self.index.postures_rad, axis=0)
+        if fit.task_prior_spread > 0 and len(task_postures) <= fit.task_prior_max_postures:
             self.prior = with_task_postures(
                 self.prior,
-                self.index.postures_rad,
-                spread=self.settings.fit.task_prior_spread,
-                offset=self.settings.fit.task_prior_offset,
+                task_postures,
+                spread=fit.task_prior_spread,
+                offset=fit.task_prior_offset,
             )
         self._model_samples = hand_samples(
             self.model_mesh, self.split, spacing=self.settings.fit.sample_spacing

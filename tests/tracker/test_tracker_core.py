@@ -423,3 +423,19 @@ def test_a_start_needs_more_confidence_than_a_tracked_frame():
     assert not fit_trusted(matched, outside, rms_m, settings, starting=True)
     with pytest.raises(ValueError, match="min_start_confidence"):
         TrackerSettings(min_start_confidence=1.5)
+
+
+def test_the_databases_postures_join_the_prior_unless_they_are_many(open_pinch_power_database):
+    from tracker.generative.fit import FitSettings
+    from tracker.pipeline import Tracker, TrackerSettings
+
+    def task_postures(**fit):
+        settings = TrackerSettings(fit=FitSettings(**fit))
+        with Tracker(open_pinch_power_database, settings=settings) as tracker:
+            return tracker.prior.task_postures_rad
+
+    held = task_postures()
+    expected = np.stack([named_posture(name) for name in ("open", "pinch", "power")])
+    np.testing.assert_allclose(np.sort(held, axis=0), np.sort(expected, axis=0), atol=1e-6)
+    assert len(task_postures(task_prior_max_postures=2)) == 0  # more than a task holds
+    assert len(task_postures(task_prior_spread=0.0)) == 0  # turned off
