@@ -126,7 +126,7 @@ def add_tracker_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--fit-iterations",
         type=int,
-        help="Levenberg-Marquardt steps of the generative fit per start (default 6)",
+        help="Levenberg-Marquardt steps of the generative fit per start (default 4)",
     )
     parser.add_argument(
         "--hand",

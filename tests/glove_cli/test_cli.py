@@ -27,6 +27,15 @@ def test_help_lists_the_commands(capsys):
         assert command in out
 
 
+def test_track_help_states_the_fits_default_iterations(capsys):
+    from tracker.generative.fit import FitSettings
+
+    with pytest.raises(SystemExit):
+        main(["track", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert f"per start (default {FitSettings().iterations})" in help_text
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
