@@ -34,7 +34,7 @@ class TrackingBenchmark:
     first_pose_s : float
         From the start (before ``Tracker(...)``) to the first frame's result.
     read_ahead : int
-        Frames read ahead in a thread (0: read in turn).
+        Frames read ahead while one is tracked (0: read in turn).
     first_pose_since_launch_s : float or None
         From the launch of this process (Python's start and imports included) to the
         first frame's result; None where the system does not tell (not Linux).

@@ -493,7 +493,7 @@ class Tracker(Closing):
     def prepare(self, frame: Frame) -> PreparedFrame:
         """Classify and segment ``frame`` (steps 1-2 of the module docstring).
 
-        Needs no earlier frame, so a reader thread can prepare the next frames while
+        Needs no earlier frame, so a reader can prepare the next frames while
         one is tracked (:func:`tracker.run.track_source`).
         """
         clock = time.perf_counter()

@@ -39,7 +39,7 @@ from tracker.overlay import (
     timing_summary,
 )
 from tracker.pipeline import PreparedFrame, Tracker
-from tracker.prefetch import Prefetch
+from tracker.prefetch import reader_for
 from tracker.sources import LIVE_CAMERAS, Source
 
 POSES_FILE = "poses.jsonl"
@@ -71,7 +71,7 @@ class RunSummary:
         end-of-run files excluded); ``frames / loop_seconds`` is the end-to-end rate.
     read_wait_seconds : float
         Time the loop waited for the next frame to be read and decoded: what reading
-        ahead in a thread (:class:`tracker.prefetch.Prefetch`) did not hide.
+        ahead (:func:`tracker.prefetch.reader_for`) did not hide.
     """
 
     frames: int
@@ -155,7 +155,8 @@ def track_source(
         opens and closes them.
     read_ahead : int
         Frames of a folder or recording read, decoded and prepared (classified and
-        segmented, :meth:`Tracker.prepare`) ahead in a thread while one is tracked
+        segmented, :meth:`Tracker.prepare`) ahead in a child process (a thread where
+        the platform cannot fork; :func:`tracker.prefetch.reader_for`) while one is tracked
         (0: in turn). A camera is always read in turn, so that the tracker gets its
         newest frame, not a queued one.
     progress : callable, optional
@@ -172,7 +173,7 @@ def track_source(
     frames: Iterator[Frame | PreparedFrame] = source_frames
     reader = None
     if read_ahead > 0 and source.kind not in LIVE_CAMERAS:
-        frames = reader = Prefetch(map(tracker.prepare, source_frames), depth=read_ahead)
+        frames = reader = reader_for(map(tracker.prepare, source_frames), depth=read_ahead)
     if progress is not None:
         frames = iter(progress(frames, source.n_frames))
     records: list[dict[str, Any]] = []

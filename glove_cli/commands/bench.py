@@ -54,7 +54,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--read-ahead",
         type=int,
         default=2,
-        help="frames decoded ahead in a thread while one is tracked (default 2; 0: in turn)",
+        help="frames decoded ahead while one is tracked (default 2; 0: in turn)",
     )
     track.add_argument("--json", action="store_true", help="print one JSON object")
     track.set_defaults(run=run_track)
