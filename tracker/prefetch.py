@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import mmap
 import multiprocessing
+import os
 import pickle
 import queue
 import sys
@@ -163,6 +164,7 @@ class ProcessPrefetch(Generic[T]):
         self._ready: Any = context.Queue()
         self._stop = context.Event()
         self._finished = False
+        self._parent = os.getpid()
         self._process = context.Process(
             target=self._read, args=(iter(frames),), name="glove-reader", daemon=True
         )
@@ -171,8 +173,9 @@ class ProcessPrefetch(Generic[T]):
     # The child -------------------------------------------------------------------
 
     def _take_slot(self) -> int | None:
-        """A free slot, waiting for the caller to release one; None once stopped."""
-        while not self._stop.is_set():
+        """A free slot, waiting for the caller to release one; None once stopped or
+        once the caller's process is gone (killed: it never set the stop)."""
+        while not self._stop.is_set() and os.getppid() == self._parent:
             try:
                 return int(self._free.get(timeout=0.05))
             except queue.Empty:

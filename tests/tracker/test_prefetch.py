@@ -110,3 +110,32 @@ def test_the_child_stays_at_most_depth_items_ahead_and_stops_on_close(tmp_path):
     assert len(log.read_text().split()) <= 5
     reader.close()
     assert not reader._process.is_alive()
+
+
+@linux
+def test_the_child_ends_when_the_caller_is_killed():
+    import subprocess
+    import textwrap
+
+    script = textwrap.dedent("""
+        import itertools, os
+        from tracker.prefetch import ProcessPrefetch
+        reader = ProcessPrefetch(itertools.count())
+        next(reader)
+        print(reader._process.pid, flush=True)
+        os._exit(0)  # killed: no close, no exit handlers
+    """)
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    child = int(run.stdout)
+
+    def running() -> bool:  # a zombie nobody reaps has ended too
+        try:
+            with open(f"/proc/{child}/stat") as stat:
+                return stat.read().rsplit(")", 1)[1].split()[0] != "Z"
+        except FileNotFoundError:
+            return False
+
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and running():
+        time.sleep(0.1)
+    assert not running()
