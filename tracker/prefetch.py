@@ -244,12 +244,16 @@ class ProcessPrefetch(Generic[T]):
             try:
                 return self._ready.get(timeout=0.1)
             except queue.Empty:
-                if not self._process.is_alive():
-                    self._finished = True
-                    raise RuntimeError(
-                        "the frame reader process ended unexpectedly "
-                        f"(exit code {self._process.exitcode})"
-                    ) from None
+                if self._process.is_alive():
+                    continue
+            try:  # what the child sent just before it ended
+                return self._ready.get(timeout=0.5)
+            except queue.Empty:
+                self._finished = True
+                raise RuntimeError(
+                    "the frame reader process ended unexpectedly "
+                    f"(exit code {self._process.exitcode})"
+                ) from None
 
     def close(self) -> None:
         """Stop the child (it finishes the item it is reading) and wait for it."""
