@@ -110,3 +110,33 @@ def score_label_rows(
             count += label > 0
         total = (sum0 + sum1) + (sum2 + sum3)
         errors[row] = np.float32(np.inf) if count == 0 else total / np.float32(count)
+
+
+@numba.njit(nogil=True, cache=True)
+def entries_at_most(
+    errors: NDArray[np.float32],
+    entry_ids: NDArray[np.int64],
+    starts: NDArray[np.int64],
+    lengths: NDArray[np.int64],
+    bound: np.float32,
+    kept_ids: NDArray[np.int64],
+    kept_errors: NDArray[np.float32],
+) -> int:
+    """Keep the entries whose error is at most ``bound``; return how many.
+
+    ``errors`` are those of the images ``starts[i] .. starts[i] + lengths[i] - 1``,
+    range after range; image ``j`` shows entry ``entry_ids[j]``. The kept entries and
+    their errors go to the front of ``kept_ids`` and ``kept_errors``, in scan order.
+    """
+    out = 0
+    position = 0
+    for index in range(len(starts)):
+        first = starts[index]
+        for offset in range(lengths[index]):
+            error = errors[position]
+            if error <= bound:
+                kept_ids[out] = entry_ids[first + offset]
+                kept_errors[out] = error
+                out += 1
+            position += 1
+    return out

@@ -430,14 +430,46 @@ def _smallest(
     k = min(k, len(errors))
     if k == 0:
         return np.empty(0, np.int64)
-    stride = max(1, len(errors) // _SAMPLE_SIZE)
-    sample = errors[::stride]
-    rank = min(len(sample) - 1, math.ceil(1.5 * k / stride) + 32)
-    threshold = np.partition(sample, rank)[rank]
-    rows = np.flatnonzero(errors <= threshold)
+    rows = np.flatnonzero(errors <= _candidate_bound(errors, k))
     if len(rows) < k:
         rows = np.arange(len(errors))
     return rows[np.lexsort((rows if ids is None else ids[rows], errors[rows]))[:k]]
+
+
+def _candidate_bound(errors: NDArray[np.float32], k: int) -> np.float32:
+    """A strided sample's quantile a little above ``k / N`` of ``errors`` (``k >= 1``):
+    usually a few thousand errors lie at or below it, and at least ``k``."""
+    stride = max(1, len(errors) // _SAMPLE_SIZE)
+    sample = errors[::stride]
+    rank = min(len(sample) - 1, math.ceil(1.5 * k / stride) + 32)
+    return np.partition(sample, rank)[rank]
+
+
+def _smallest_in_ranges(
+    errors: NDArray[np.float32],
+    entry_ids: NDArray[np.int64],
+    starts: NDArray[np.int64],
+    lengths: NDArray[np.int64],
+    k: int,
+) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+    """:func:`_smallest_entries` of images that each show one entry, scanned in the
+    ranges ``starts[i]:starts[i] + lengths[i]`` (``errors`` in that order), without
+    listing the scanned positions: one compiled pass keeps the candidates."""
+    k = min(k, len(errors))
+    if k == 0:
+        return np.empty(0, np.int64), np.empty(0, np.float32)
+    kept_ids = np.empty(len(errors), np.int64)
+    kept_errors = np.empty(len(errors), np.float32)
+    bound = _candidate_bound(errors, k)
+    count = _search_kernels.entries_at_most(
+        errors, entry_ids, starts, lengths, bound, kept_ids, kept_errors
+    )
+    if count < k:
+        count = _search_kernels.entries_at_most(
+            errors, entry_ids, starts, lengths, np.float32(np.inf), kept_ids, kept_errors
+        )
+    order = np.lexsort((kept_ids[:count], kept_errors[:count]))[:k]
+    return kept_ids[order], kept_errors[order]
 
 
 def _smallest_entries(
@@ -503,13 +535,15 @@ def _scan_lists(
             packed.codes, packed.glove_pixels, table, starts[first:last], stops[first:last], written
         )
 
-    # ``workers`` parts of about equal rows.
+    # ``workers`` parts of about equal rows; the calling thread scores the first.
     cuts = np.searchsorted(ends, ends[-1] * np.arange(1, workers) / workers).tolist()
     parts = [(a, b) for a, b in itertools.pairwise([0, *cuts, len(starts)]) if b > a]
-    if len(parts) == 1:
-        score(parts[0])
-    else:
-        list(_thread_pool(workers).map(score, parts))
+    others = [_thread_pool(workers).submit(score, part) for part in parts[1:]]
+    score(parts[0])
+    for other in others:
+        other.result()
+    if lists.images.num_entries == lists.images.num_images:  # one entry per image
+        return _smallest_in_ranges(errors, lists.images.entry_ids, starts, lengths, k)
     return _smallest_entries(lists.images, errors, k, range_positions(starts, lengths))
 
 

@@ -307,3 +307,28 @@ def test_an_empty_database_gives_an_empty_result() -> None:
     result = cascade_search({8: query}, {8: empty}, "8:5")
     assert result.entry_ids.shape == (0,)
     assert result.errors.shape == (0,)
+
+
+@pytest.mark.parametrize("k", [1, 300, 2000, 50_000])
+def test_selection_over_scanned_ranges_equals_selection_over_their_positions(k: int) -> None:
+    from glovedb.distinct_images import DistinctTinyImages, range_positions
+    from glovedb.packed_images import pack_tiny_images
+    from glovedb.search import _smallest_entries, _smallest_in_ranges
+
+    rng = np.random.default_rng(5)
+    images = 40_000
+    distinct = DistinctTinyImages(
+        images=pack_tiny_images(np.zeros((images, 8, 8), np.uint8)),
+        entry_ids=rng.permutation(images).astype(np.int64),  # one entry per image
+        offsets=np.arange(images + 1, dtype=np.int64),
+    )
+    lengths = rng.integers(1, 40, size=800).astype(np.int64)
+    starts = np.sort(rng.choice(images - 40, size=800, replace=False)).astype(np.int64)
+    scanned = int(lengths.sum())
+    # Few distinct values: many ties, broken by the entry id.
+    errors = rng.integers(0, 50, size=scanned).astype(np.float32)
+    expected = _smallest_entries(distinct, errors, k, range_positions(starts, lengths))
+    got = _smallest_in_ranges(errors, distinct.entry_ids, starts, lengths, k)
+    np.testing.assert_array_equal(got[0], expected[0])
+    np.testing.assert_array_equal(got[1], expected[1])
+    assert len(got[0]) == min(k, scanned)
