@@ -66,13 +66,15 @@ class PosturePrior:
     task_postures_rad: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, N_JOINTS)))
     task_spread: float = 1.0
     task_offset: float = 0.0
+    _task_whitening: NDArray[np.float64] = field(init=False, repr=False, compare=False)
     _task_whitened: NDArray[np.float64] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         # The task centres whitened once: a posture's residual to centre k is then
         # ``W theta / spread - centre_k``, one matrix-vector product per posture.
-        whitened = self.task_postures_rad @ self.whitening.T / self.task_spread
-        object.__setattr__(self, "_task_whitened", whitened)
+        whitening = self.whitening / self.task_spread
+        object.__setattr__(self, "_task_whitening", whitening)
+        object.__setattr__(self, "_task_whitened", self.task_postures_rad @ whitening.T)
 
     def residual(self, posture_rad: ArrayLike) -> NDArray[np.float64]:
         """``(20,)`` Mahalanobis residual of a posture under the natural Gaussian."""
@@ -100,12 +102,11 @@ class PosturePrior:
         residual = self.whitening @ (posture - self.mean_rad)
         if len(self.task_postures_rad) == 0:
             return np.append(residual, 0.0), self.whitening
-        whitening = self.whitening / self.task_spread
-        task = whitening @ posture - self._task_whitened
+        task = self._task_whitening @ posture - self._task_whitened
         costs = np.einsum("ij,ij->i", task, task)
         best = int(np.argmin(costs))
         if costs[best] + self.task_offset < residual @ residual:
-            return np.append(task[best], np.sqrt(self.task_offset)), whitening
+            return np.append(task[best], np.sqrt(self.task_offset)), self._task_whitening
         return np.append(residual, 0.0), self.whitening
 
 

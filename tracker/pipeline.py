@@ -384,14 +384,15 @@ class Tracker(Closing):
         self.split = split_by_label(self.model_mesh, pattern)
         self.prior = load_posture_prior()
         fit = self.settings.fit
-        task_postures = np.unique(self.index.postures_rad, axis=0)
-        if fit.task_prior_spread > 0 and len(task_postures) <= fit.task_prior_max_postures:
-            self.prior = with_task_postures(
+        if fit.task_prior_spread > 0:
+            task = with_task_postures(
                 self.prior,
-                task_postures,
+                self.index.postures_rad,
                 spread=fit.task_prior_spread,
                 offset=fit.task_prior_offset,
             )
+            if len(task.task_postures_rad) <= fit.task_prior_max_postures:
+                self.prior = task
         self._model_samples = hand_samples(
             self.model_mesh, self.split, spacing=self.settings.fit.sample_spacing
         )

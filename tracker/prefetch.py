@@ -13,7 +13,10 @@ frame's segmentation 5.4 ms of wall time for 3.3 ms of CPU, 2.7 ms alone; the fi
 process instead: the tracking thread has the interpreter to itself. Each item is
 pickled with its arrays out of band (protocol 5) and the arrays copied through one of
 ``depth + 1`` slots of memory shared with the child, so that no pixel goes through a
-pipe; nothing is stored. Where ``fork`` is missing (Windows, macOS' default is unsafe
+pipe. The pickles are only this hand-over between the tracker and the child it
+forked (what a ``multiprocessing`` queue does with any object): nothing is written to
+a file, and nothing from outside the process is unpickled; saved models and data stay
+ONNX, ``.npz`` and HDF5. Where ``fork`` is missing (Windows, macOS' default is unsafe
 with threads) :func:`reader_for` falls back to the thread.
 """
 
