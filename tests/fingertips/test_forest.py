@@ -129,6 +129,10 @@ def test_depth_inference_equals_feature_matrix_inference() -> None:
     np.testing.assert_array_equal(
         apply_depth(forest, depth, pixels, intrinsics), apply_features(forest, features)
     )
+    # The compiled descent walks a few pixels at a time: a last, partial batch too.
+    np.testing.assert_array_equal(
+        apply_depth(forest, depth, pixels[:13], intrinsics), apply_features(forest, features[:13])
+    )
 
 
 def test_load_rejects_other_files(tmp_path: Path) -> None:
