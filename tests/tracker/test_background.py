@@ -152,6 +152,35 @@ def test_a_deferred_lookup_corrects_a_stuck_fit_two_frames_later(
 
 
 @pytest.mark.gl
+def test_the_deferred_fit_runs_lookup_fit_iterations(open_pinch_power_database, renderer):
+    from glovedb.proportions import HandProportions
+    from tracker.pipeline import Tracker, TrackerSettings
+
+    rotation = axis_angle_to_matrix(np.array([1.0, 0.0, 0.0]), np.pi)
+    rendering = renderer.render(named_posture("pinch"), rotation, np.array([0.0, 0.0, 0.6]))
+    frames = [Frame(i, rendering.color, rendering.depth_m, KINECT_V1) for i in range(8)]
+
+    def background_frames(iterations: int) -> list[int]:
+        # A periodic lookup due at every frame, collected late enough that each of its
+        # steps (search, ICP, the fit's iterations) runs in a frame of its own.
+        settings = TrackerSettings(
+            smoothing=None, lookup_delay_frames=7, reinit_every=1, relook_outside=1.0,
+            hand_proportions=HandProportions(), lookup_fit_iterations=iterations,
+        )  # fmt: skip
+        with Tracker(open_pinch_power_database, settings=settings) as tracker:
+            results = [tracker.track(tracker.prepare(frame)) for frame in frames]
+        assert all(result.hand_found for result in results)
+        return [i for i, result in enumerate(results) if "background" in result.timing_ms]
+
+    # Frame 0 looks up within the frame; frame 1 starts the deferred job.
+    assert background_frames(2) == [1, 2, 3, 4]
+    assert background_frames(3) == [1, 2, 3, 4, 5]
+    assert background_frames(9) == [1, 2, 3, 4, 5, 6]  # no more than the fit's own 4
+    with pytest.raises(ValueError, match="lookup_fit_iterations"):
+        TrackerSettings(lookup_fit_iterations=0)
+
+
+@pytest.mark.gl
 def test_frames_prepared_ahead_track_as_frames_in_turn(open_pinch_power_database, tmp_path):
     import json
 
