@@ -3,9 +3,11 @@
 One roll at a time: rotate the glove pixels, count the sub-pixels of each class in
 every cell of the largest size (integers: exact in any order), take the majority,
 then sum 2 x 2 cells for the next smaller size. Only the classes an image shows get a
-plane of counters, 16-bit when the roll has fewer than 2**16 sub-pixels (no count can
-exceed that), so one roll's counts stay in the cache; the images go straight into the
-caller's output arrays.
+plane of counters, and the counters are as narrow as the counts allow, so that one
+roll's counts stay in the cache and the loops over them take many cells a step: 8-bit
+at the largest size when no cell can hold more than 255 sub-pixels, 16-bit at the
+smaller sizes when the roll has fewer than 2**16 sub-pixels (no count can exceed
+that), else 32-bit. The images go straight into the caller's output arrays.
 """
 
 from __future__ import annotations
@@ -16,8 +18,9 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-# (counts of every size, best count per cell, glove total per cell), one dtype.
-Counters = tuple[NDArray[Any], NDArray[Any], NDArray[Any]]
+# (counts of the largest size, counts of the smaller sizes, best count per cell, glove
+# total per cell); the last three of one dtype.
+Counters = tuple[NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -125,9 +128,10 @@ def _rolls_into(
     planes = np.zeros(n_labels, dtype=np.int64)
     planes[classes] = np.arange(len(classes))
     label_offsets = planes[labels] * (size * size)
-    n_counts = len(classes) * _cells_down_to(size, outs[len(outs) - 1].shape[1])
-    small = _counters(np.uint16, n_counts, size)
-    large = _counters(np.int32, 0, size)
+    n_top = len(classes) * size * size
+    n_rest = len(classes) * _cells_down_to(size // 2, outs[len(outs) - 1].shape[1])
+    small = _counters(np.uint8, np.uint16, n_top, n_rest, size)
+    large = _counters(np.int32, np.int32, 0, 0, size)
     ru = np.empty(n)
     rv = np.empty(n)
     cells = np.empty(n, dtype=np.int64)
@@ -138,13 +142,16 @@ def _rolls_into(
         k = 1 if scale <= 0.5 else int(np.ceil(2.0 * scale))
         area = k * k / (scale * scale)  # of a cell, in sub-pixels
         geometry = (cos[r], sin[r], scale, origin_u, origin_v)
-        # No count, at any size, exceeds the roll's number of sub-pixels.
-        if n * k * k < 1 << 16:
+        # No count, at any size, exceeds the roll's number of sub-pixels; a cell of
+        # the largest size, w = 1 / scale pixels wide, holds at most (w k + 1)**2 of
+        # them (lattice points of spacing 1 / k in a square, turned or not; one more
+        # for rounding).
+        if n * k * k < 1 << 16 and (k / scale + 2.0) ** 2 <= 255.0:
             _count(ru, rv, label_offsets, geometry, k, size, len(classes), cells, small[0])
             _levels_into(small, classes, area, best, background, outs, first + r)
         else:
             if len(large[0]) == 0:
-                large = _counters(np.int32, n_counts, size)
+                large = _counters(np.int32, np.int32, n_top, n_rest, size)
             _count(ru, rv, label_offsets, geometry, k, size, len(classes), cells, large[0])
             _levels_into(large, classes, area, best, background, outs, first + r)
 
@@ -160,12 +167,14 @@ def _cells_down_to(size: int, smallest: int) -> int:
 
 
 @numba.njit(cache=True, nogil=True)
-def _counters(dtype: type, n_counts: int, size: int) -> Counters:
-    """Zeroed counts of every size, scratch for the best count and total per cell."""
+def _counters(top: type, rest: type, n_top: int, n_rest: int, size: int) -> Counters:
+    """Zeroed counts of the largest size and of the others, scratch for the best count
+    and total per cell (of the wider type)."""
     return (
-        np.zeros(n_counts, dtype=dtype),
-        np.empty(size * size, dtype=dtype),
-        np.empty(size * size, dtype=dtype),
+        np.zeros(n_top, dtype=top),
+        np.zeros(n_rest, dtype=rest),
+        np.empty(size * size, dtype=rest),
+        np.empty(size * size, dtype=rest),
     )
 
 
@@ -259,28 +268,32 @@ def _levels_into(
     index: int,
 ) -> None:
     """Majority images of every size into ``outs[j][index]``, from the counts of the
-    largest size, ``len(classes)`` planes at the start of ``counters[0]``; the smaller
-    sizes' counts follow them. ``area`` is a cell's, in sub-pixels."""
-    hits, best_count, totals = counters
+    largest size, ``len(classes)`` planes in ``counters[0]``; the smaller sizes' counts
+    go one after another into ``counters[1]``. ``area`` is a cell's, in sub-pixels."""
+    top, hits, best_count, totals = counters
     n_planes = len(classes)
     side = outs[0].shape[1]
     cells = side * side
-    _tally(hits[: n_planes * cells], classes, best[:cells], best_count[:cells], totals[:cells])
+    _tally(top[: n_planes * cells], classes, best[:cells], best_count[:cells], totals[:cells])
     for cell in range(cells):
         background[0, cell] = np.float32(max(area - totals[cell], 0.0))
     _majority(best[:cells], best_count[:cells], background[0, :cells], outs[0][index])
-    offset = 0
+    current = -1  # where the current size's planes start in ``hits``; -1: ``top``
     level = 0
     for j in range(1, len(outs)):
         while side > outs[j].shape[1]:
-            above = hits[offset : offset + n_planes * cells]
-            offset += n_planes * cells
             side //= 2
+            start = 0 if current < 0 else current + 4 * n_planes * side * side
+            below = hits[start : start + n_planes * side * side]
+            if current < 0:
+                _halve(top, background[level], n_planes, side, below, background[1 - level])
+            else:
+                above = hits[current:start]
+                _halve(above, background[level], n_planes, side, below, background[1 - level])
+            current = start
             cells = side * side
-            below = hits[offset : offset + n_planes * cells]
-            _halve(above, background[level], n_planes, side, below, background[1 - level])
             level = 1 - level
-        planes = hits[offset : offset + n_planes * cells]
+        planes = hits[current : current + n_planes * cells]
         _tally(planes, classes, best[:cells], best_count[:cells], totals[:cells])
         _majority(best[:cells], best_count[:cells], background[level, :cells], outs[j][index])
 

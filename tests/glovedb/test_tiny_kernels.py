@@ -434,6 +434,19 @@ def test_kernel_writes_only_its_rows():
     np.testing.assert_array_equal(outs[1], expected[8])
 
 
+def test_counts_beyond_8_bits():
+    """8-bit counters at the largest size only while no cell can hold 256 sub-pixels:
+    here one cell of 50 x 50 pixels holds a block of 1,600, in a roll of far fewer than
+    2**16."""
+    images = np.zeros((1, 201, 201), np.uint8)
+    images[0, 5:45, 5:45] = 7
+    images[0, 200, 200] = 1  # stretches the crop: cells of the 4 x 4 image 50 pixels wide
+    images[0, 120:130, 60:180] = 3
+    assert_same_as_reference(images, (4,), np.array([0.0, 0.05]))
+    assert_same_as_reference(images, (4, 8), np.array([0.0, 0.3]))
+    assert tiny_images_of_label_images(images, (4,))[4][0, 0, 0] == 7
+
+
 def test_counts_beyond_16_bits():
     """A cell of 4 x 4 with more than 2**16 pixels of one class."""
     images = np.zeros((1, 1101, 1101), np.uint8)
