@@ -66,7 +66,7 @@ def descend_matrix(table: TreeTable, values: NDArray[np.float32]) -> NDArray[np.
     """Leaves ``(N, T)`` of the rows of a float32 feature matrix ``(N, F)`` in every tree.
 
     A compiled loop (:func:`fingertips._tree_kernels.descend_rows`) that reaches
-    the leaves :func:`descend` does, one (row, tree) pair at a time.
+    the leaves :func:`descend` does.
     """
     return descend_rows(
         np.ascontiguousarray(values, dtype=np.float32),
