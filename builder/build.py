@@ -34,7 +34,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from multiprocessing.queues import SimpleQueue
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, BinaryIO, Literal
 
 import h5py
 import numpy as np
@@ -301,18 +301,51 @@ def read_shard(
     parts: Path, posture_index: int, sizes: tuple[int, ...], views: int
 ) -> dict[int, tuple[NDArray[np.int64], NDArray[np.uint8]]]:
     """``{size: (lengths, rows)}`` of one shard: ``(views,) int64`` row lengths and the
-    rows' bytes, as views of a read-only memory map."""
+    rows' bytes, read into memory (one read; no memory map to set up and page in)."""
     path = shard_path(parts, posture_index)
-    shard = np.load(path, mmap_mode="r", allow_pickle=False)
-    head = 8 * views * len(sizes)
-    if shard.dtype != np.uint8 or shard.ndim != 1 or len(shard) < head:
+    with open(path, "rb") as file:
+        lengths, size_bytes = _shard_head(file, path, len(sizes), views)
+        data = np.fromfile(file, np.uint8, count=int(size_bytes.sum()))
+    if len(data) != size_bytes.sum():
         raise ValueError(f"{path}: not a shard of this build")
-    lengths = shard[:head].view(np.int64).reshape(len(sizes), views)
-    stops = head + np.cumsum(lengths.sum(axis=1))
-    if lengths.min() <= HEADER_BYTES or stops[-1] != len(shard):
-        raise ValueError(f"{path}: not a shard of this build")
-    starts = np.r_[head, stops[:-1]]
-    return {size: (lengths[k], shard[starts[k] : stops[k]]) for k, size in enumerate(sorted(sizes))}
+    stops = np.cumsum(size_bytes)
+    starts = stops - size_bytes
+    return {size: (lengths[k], data[starts[k] : stops[k]]) for k, size in enumerate(sorted(sizes))}
+
+
+def read_shard_lengths(
+    parts: Path, posture_index: int, sizes: tuple[int, ...], views: int
+) -> NDArray[np.int64]:
+    """The ``(len(sizes), views)`` row lengths of one shard, its rows left unread."""
+    path = shard_path(parts, posture_index)
+    with open(path, "rb") as file:
+        return _shard_head(file, path, len(sizes), views)[0]
+
+
+def _shard_head(
+    file: BinaryIO, path: Path, n_sizes: int, views: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Read a shard's ``.npy`` header and row lengths from ``file``; return the lengths
+    ``(n_sizes, views)`` and the bytes of each size's rows ``(n_sizes,)``, which follow.
+    ``ValueError`` for a file that is not a shard of this build."""
+    refused = ValueError(f"{path}: not a shard of this build")
+    try:
+        if np.lib.format.read_magic(file) != (1, 0):
+            raise refused
+        shape, _, dtype = np.lib.format.read_array_header_1_0(file)
+    except ValueError:
+        raise refused from None
+    head = 8 * views * n_sizes
+    if dtype != np.uint8 or len(shape) != 1 or shape[0] < head:
+        raise refused
+    raw = file.read(head)
+    if len(raw) != head:
+        raise refused
+    lengths = np.frombuffer(raw, np.int64).reshape(n_sizes, views)
+    size_bytes = lengths.sum(axis=1)
+    if lengths.min() <= HEADER_BYTES or head + size_bytes.sum() != shape[0]:
+        raise refused
+    return lengths, size_bytes
 
 
 # State of a worker process (its renderer), set once by the pool's initializer: the
@@ -562,8 +595,9 @@ def _write_rows(
     """``/tiny/<s>/rows`` and ``offsets`` of every size, copied from the shards."""
     lengths = {size: np.empty((postures, views), np.int64) for size in sizes}
     for posture in range(postures):  # the row lengths first: the datasets' sizes
-        for size, (shard_lengths, _) in read_shard(parts, posture, sizes, views).items():
-            lengths[size][posture] = shard_lengths
+        shard_lengths = read_shard_lengths(parts, posture, sizes, views)
+        for k, size in enumerate(sorted(sizes)):
+            lengths[size][posture] = shard_lengths[k]
     datasets = {}
     for size in sizes:
         offsets = np.concatenate([[0], np.cumsum(lengths[size])])
