@@ -70,6 +70,14 @@ def pose_for_view(
     The image "up" is the hand's +y (toward the fingers) unless the camera looks
     along y, in which case it is the hand's +z (the back of the hand).
     """
+    looking, eye = _unrolled_camera(direction, distance_m, target_m)
+    return _rolled(looking, eye, axis_angle_to_matrix(np.array([0.0, 0.0, 1.0]), roll_rad))
+
+
+def _unrolled_camera(
+    direction: ArrayLike, distance_m: float, target_m: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``cam_R_hand`` of :func:`pose_for_view` at roll 0, and the camera's position."""
     direction = as_array("direction", direction, (3,), np.float64, finite=True)
     target = as_array("target_m", target_m, (3,), np.float64, finite=True)
     if distance_m <= 0:
@@ -77,7 +85,14 @@ def pose_for_view(
     unit = direction / np.linalg.norm(direction)
     eye = target + distance_m * unit
     up = np.array([0.0, 1.0, 0.0]) if abs(unit[1]) < 0.95 else np.array([0.0, 0.0, 1.0])
-    rotation = axis_angle_to_matrix(np.array([0.0, 0.0, 1.0]), roll_rad) @ look_at(eye, target, up)
+    return look_at(eye, target, up), eye
+
+
+def _rolled(
+    looking: NDArray[np.float64], eye: NDArray[np.float64], roll: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The pose of the camera ``looking`` from ``eye``, turned by ``roll`` about its axis."""
+    rotation = roll @ looking
     return rotation, -rotation @ eye
 
 
@@ -166,12 +181,13 @@ def database_views(
         raise ValueError(f"rolls: expected at least 1, got {rolls}")
     roll_rad = np.arange(rolls, dtype=np.float64) * (2 * np.pi / rolls)
     target = np.array(HAND_CENTRE) * hand_length_m
+    # pose_for_view of every position and roll, each camera and roll rotation made once.
+    turns = [axis_angle_to_matrix(np.array([0.0, 0.0, 1.0]), roll) for roll in roll_rad]
     rotations, translations = [], []
     for direction in icosphere(subdivisions):
-        for roll in roll_rad:
-            rotation, translation = pose_for_view(
-                direction, distance_m, target_m=target, roll_rad=roll
-            )
+        looking, eye = _unrolled_camera(direction, distance_m, target)
+        for turn in turns:
+            rotation, translation = _rolled(looking, eye, turn)
             rotations.append(rotation)
             translations.append(translation)
     return np.array(rotations), np.array(translations), roll_rad
