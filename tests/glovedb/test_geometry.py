@@ -15,7 +15,14 @@ from glovedb.rotations import (
     rotation_vector,
     slerp,
 )
-from glovedb.views import NAMED_VIEWS, named_view, pose_for_view
+from glovedb.views import (
+    HAND_CENTRE,
+    NAMED_VIEWS,
+    database_views,
+    icosphere,
+    named_view,
+    pose_for_view,
+)
 
 
 def random_rotations(count: int, seed: int = 0) -> np.ndarray:
@@ -122,3 +129,15 @@ def test_rotation_vector_inverts_axis_angle():
         np.testing.assert_allclose(
             rotation_vector(axis_angle_to_matrix(axis, angle)), axis * angle, atol=1e-9
         )
+
+
+def test_database_views_are_pose_for_view_of_every_position_and_roll():
+    rotations, translations, rolls = database_views(1, 5, distance_m=0.45, hand_length_m=0.2)
+    directions = icosphere(1)
+    assert rotations.shape == (42 * 5, 3, 3) and np.allclose(rolls, np.arange(5) * 2 * np.pi / 5)
+    target = np.array(HAND_CENTRE) * 0.2
+    for view in range(len(rotations)):
+        position, roll = divmod(view, 5)
+        expected = pose_for_view(directions[position], 0.45, target_m=target, roll_rad=rolls[roll])
+        np.testing.assert_array_equal(rotations[view], expected[0])  # bit for bit
+        np.testing.assert_array_equal(translations[view], expected[1])
