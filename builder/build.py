@@ -338,6 +338,8 @@ def _shard_head(
     head = 8 * views * n_sizes
     if dtype != np.uint8 or len(shape) != 1 or shape[0] < head:
         raise refused
+    if os.fstat(file.fileno()).st_size != file.tell() + shape[0]:  # cut short
+        raise refused
     raw = file.read(head)
     if len(raw) != head:
         raise refused

@@ -17,6 +17,7 @@ from builder.build import (
     build_database,
     make_plan,
     read_shard,
+    read_shard_lengths,
     shard_path,
     stored_settings,
     write_shard,
@@ -122,7 +123,17 @@ def test_shards_hold_the_encoded_rows_and_old_shards_are_not_resumed(tmp_path):
         expected_rows, expected_lengths = encode_rows(images[size])
         np.testing.assert_array_equal(lengths, expected_lengths)
         np.testing.assert_array_equal(rows, expected_rows)
-    # A shard of format 1 (raw images) is refused, not misread ...
+    np.testing.assert_array_equal(
+        read_shard_lengths(tmp_path, 4, (8, 16), 3),
+        [encode_rows(images[8])[1], encode_rows(images[16])[1]],
+    )
+    # A shard cut short (an interrupted copy) is refused by both readers ...
+    whole = shard_path(tmp_path, 4).read_bytes()
+    shard_path(tmp_path, 4).write_bytes(whole[:-1])
+    for read in (read_shard, read_shard_lengths):
+        with pytest.raises(ValueError, match="not a shard of this build"):
+            read(tmp_path, 4, (8, 16), 3)
+    # ... a shard of format 1 (raw images) is refused, not misread ...
     np.save(shard_path(tmp_path, 5), np.zeros(3 * (64 + 256), np.uint8))
     with pytest.raises(ValueError, match="not a shard of this build"):
         read_shard(tmp_path, 5, (8, 16), 3)
