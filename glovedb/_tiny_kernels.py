@@ -278,7 +278,9 @@ def _levels_into(
     for cell in range(cells):
         background[0, cell] = np.float32(max(area - totals[cell], 0.0))
     _majority(best[:cells], best_count[:cells], background[0, :cells], outs[0][index])
-    current = -1  # where the current size's planes start in ``hits``; -1: ``top``
+    # Where the current size's planes start in ``hits``; -1: in ``top``, whose narrower
+    # dtype a compiled variable cannot share with ``hits``' slices, hence two calls.
+    current = -1
     level = 0
     for j in range(1, len(outs)):
         while side > outs[j].shape[1]:
