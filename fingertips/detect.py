@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, fields, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -33,10 +33,12 @@ from fingertips.features import (
     stride_for_spacing,
 )
 from fingertips.forest import FingertipForest, apply_probe_image, predict_leaves
-from fingertips.geodesic import geodesic_candidates
+from fingertips.geodesic import GeodesicCandidates, geodesic_candidates
 from fingertips.heatmap import (
+    CROP_CENTRES,
     HAND_BAND_M,
     HAND_DEPTH_RANGE_M,
+    CropCentre,
     HandHeatmaps,
     HeatmapStage,
     heatmap_peaks,
@@ -151,6 +153,11 @@ class DetectorConfig:
         ``voting.bandwidth_m`` merged. Detections closer than
         ``voting.min_separation_m`` to a more probable one (a stronger one without
         the verifier) are dropped.
+    heatmap_centre : {"density", "fingers"}
+        Where the heatmap stage centres its crop (:func:`fingertips.heatmap.crop_centre`):
+        the nearest object's densest 12 cm, or the geodesic stage's finger candidates
+        (the stage then runs for the crop even with ``candidates`` "forest"). A model's
+        heatmap verifier is fitted with one rule and records it.
     voting : VotingConfig
     """
 
@@ -163,11 +170,13 @@ class DetectorConfig:
     heatmap_min_probability: float = 0.0
     segmentation: SegmentationMethod = "band"
     candidates: CandidateSource = "forest"
+    heatmap_centre: CropCentre = "density"
     voting: VotingConfig = DEFAULT_VOTING
 
     def __post_init__(self) -> None:
         check_choice("segmentation", self.segmentation, SEGMENTATION_METHODS)
         check_choice("candidates", self.candidates, CANDIDATE_SOURCES)
+        check_choice("heatmap_centre", self.heatmap_centre, CROP_CENTRES)
         if not 0 < self.c_thr < math.inf:
             raise ValueError(f"c_thr: expected a positive, finite threshold, got {self.c_thr}")
         if self.stride < 1:
@@ -347,28 +356,43 @@ def _hand_votes(
     return votes, probes
 
 
-def _candidates(
-    depth_m: ArrayLike, camera: NDArray[np.float64], model: FingertipForest, config: DetectorConfig
-) -> tuple[FrameCandidates, NDArray[np.float32], NDArray[np.float32]]:
-    """:func:`candidate_peaks` and the hand depth they come from.
+def _start_geodesic(
+    masked: NDArray[np.float32],
+    camera: NDArray[np.float64],
+    config: DetectorConfig,
+    *,
+    heatmap: bool,
+) -> Future[GeodesicCandidates] | None:
+    """Start the geodesic stage in its worker thread when the candidates or, with
+    ``heatmap``, the heatmap's crop centre need it.
 
-    The geodesic stage runs in a worker thread while the forest votes (both are
-    compiled loops that release the GIL), so that its 4-6 ms per VGA frame (median in
-    ``glove bench fingertips``) overlap the forest's instead of adding to them.
+    It runs while the forest votes (both are compiled loops that release the GIL), so
+    that its 4-6 ms per VGA frame (median in ``glove bench fingertips``) overlap the
+    forest's instead of adding to them.
     """
-    masked = _frame_hand_depth(depth_m, camera, model, config)
-    geodesic = None
-    if config.candidates == "union":
-        geodesic = _beside_the_forest().submit(geodesic_candidates, masked, camera)
+    if config.candidates == "union" or (heatmap and config.heatmap_centre == "fingers"):
+        return _beside_the_forest().submit(geodesic_candidates, masked, camera)
+    return None
+
+
+def _candidates(
+    masked: NDArray[np.float32],
+    camera: NDArray[np.float64],
+    model: FingertipForest,
+    config: DetectorConfig,
+    geodesic: Future[GeodesicCandidates] | None,
+) -> tuple[FrameCandidates, NDArray[np.float32]]:
+    """:func:`candidate_peaks` of the hand depth ``masked`` (:func:`_frame_hand_depth`),
+    ``geodesic`` being its started geodesic stage (:func:`_start_geodesic`)."""
     votes, probes = _hand_votes(masked, camera, model, config)
     peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
     bandwidth = config.voting.bandwidth_m
-    if geodesic is not None:
+    if config.candidates == "union" and geodesic is not None:
         candidates = merge_candidates(peaks, geodesic.result(), votes, bandwidth_m=bandwidth)
     else:
         candidates = forest_candidates(peaks)
     features = candidate_features(candidates, votes, probes, camera, bandwidth_m=bandwidth)
-    return candidates, features, masked
+    return candidates, features
 
 
 _GEODESIC_WORKER: list[ThreadPoolExecutor] = []
@@ -410,7 +434,33 @@ def candidate_peaks(
     features : (K, len(UNION_FEATURES)) float32
         :func:`fingertips.candidates.candidate_features` of the candidates.
     """
-    return _candidates(depth_m, intrinsics_array(intrinsics), model, config)[:2]
+    camera = intrinsics_array(intrinsics)
+    masked = _frame_hand_depth(depth_m, camera, model, config)
+    geodesic = _start_geodesic(masked, camera, config, heatmap=False)
+    return _candidates(masked, camera, model, config, geodesic)
+
+
+class VerifiedCandidates(NamedTuple):
+    """What :func:`verified_candidates` returns: what the heatmap stage reads.
+
+    Attributes
+    ----------
+    candidates : FrameCandidates
+        Every candidate (:func:`candidate_peaks`), strongest first.
+    probability : (K,) float32
+        Their verifier probabilities.
+    hand_depth_m : (H, W) float32 or None
+        The forest's hand depth when it is cut like the heatmap's crop centre needs it
+        (:func:`fingertips.heatmap.hand_centre`), else None.
+    geodesic : GeodesicCandidates or None
+        The frame's geodesic stage when the candidates or the crop centre
+        (``heatmap_centre`` "fingers") use it, else None.
+    """
+
+    candidates: FrameCandidates
+    probability: NDArray[np.float32]
+    hand_depth_m: NDArray[np.float32] | None
+    geodesic: GeodesicCandidates | None
 
 
 def verified_candidates(
@@ -419,8 +469,8 @@ def verified_candidates(
     model: FingertipForest,
     *,
     config: DetectorConfig = DEFAULT_DETECTOR,
-) -> tuple[FrameCandidates, NDArray[np.float32], NDArray[np.float32] | None]:
-    """Candidates with their verifier probabilities: what the heatmap stage reads.
+) -> VerifiedCandidates:
+    """Candidates with their verifier probabilities, and what the heatmap stage reads.
 
     Parameters
     ----------
@@ -430,27 +480,24 @@ def verified_candidates(
     model : FingertipForest
         With a peak verifier.
     config : DetectorConfig
-
-    Returns
-    -------
-    candidates : FrameCandidates
-        Every candidate (:func:`candidate_peaks`), strongest first.
-    probability : (K,) float32
-        Their verifier probabilities.
-    hand_depth_m : (H, W) float32 or None
-        The forest's hand depth when it is cut like the heatmap's crop centre needs it
-        (:func:`fingertips.heatmap.hand_centre`), else None.
     """
     if model.verifier is None:
         raise ValueError("model: has no peak verifier (a [verifier] table)")
     camera = intrinsics_array(intrinsics)
-    candidates, features, masked = _candidates(depth_m, camera, model, config)
+    masked = _frame_hand_depth(depth_m, camera, model, config)
+    geodesic = _start_geodesic(masked, camera, config, heatmap=True)
+    candidates, features = _candidates(masked, camera, model, config, geodesic)
     same_cut = (
         np.allclose(model.depth_range_m, HAND_DEPTH_RANGE_M, rtol=1e-6)
         and config.depth_band_m == HAND_BAND_M
         and config.segmentation == "band"
     )
-    return candidates, verify_peaks(model.verifier, features), masked if same_cut else None
+    return VerifiedCandidates(
+        candidates,
+        verify_peaks(model.verifier, features),
+        masked if same_cut else None,
+        None if geodesic is None else geodesic.result(),
+    )
 
 
 def detect_fingertips(
@@ -509,23 +556,34 @@ def detect_fingertips(
         peaks = find_peaks(votes, c_thr=config.c_thr, config=config.voting)
         detections = _candidate_detections(forest_candidates(peaks), None, camera)
     elif model.verifier is None:
-        candidates = _candidates(depth, camera, model, config)[0]
+        masked = _frame_hand_depth(depth, camera, model, config)
+        geodesic = _start_geodesic(masked, camera, config, heatmap=False)
+        candidates = _candidates(masked, camera, model, config, geodesic)[0]
         keep = _separated(candidates, candidates.confidences, config.voting.min_separation_m)
         detections = _candidate_detections(candidates, None, camera, keep)
     else:
+        # The heatmap's network runs in its own thread while the forest votes; with the
+        # "fingers" crop centre, once the geodesic stage beside the forest is done.
+        heatmap = model.heatmap if config.heatmap_min_probability > 0 else None
+        density = config.heatmap_centre == "density"
         heat = None
-        if config.heatmap_min_probability > 0 and model.heatmap is not None:
-            heat = start_heatmaps(depth, camera, model.heatmap)  # runs while the forest votes
-        candidates, probability, _ = verified_candidates(depth, camera, model, config=config)
+        if heatmap is not None and density:
+            heat = start_heatmaps(depth, camera, heatmap)
+        masked = _frame_hand_depth(depth, camera, model, config)
+        geodesic = _start_geodesic(masked, camera, config, heatmap=heatmap is not None)
+        if heatmap is not None and not density:
+            heat = start_heatmaps(depth, camera, heatmap, geodesic=geodesic)
+        candidates, features = _candidates(masked, camera, model, config, geodesic)
+        probability = verify_peaks(model.verifier, features)
         # With the verifier off (min_tip_probability 0) the vote weight ranks, as without one.
         rank_by = probability if config.min_tip_probability > 0 else candidates.confidences
         keep = (probability >= config.min_tip_probability) & _separated(
             candidates, rank_by, config.voting.min_separation_m
         )
         detections = _candidate_detections(candidates, probability, camera, keep)
-        if heat is not None and model.heatmap is not None:
+        if heat is not None and heatmap is not None:
             detections += _heatmap_detections(
-                depth, camera, model.heatmap, config, candidates, probability, detections,
+                depth, camera, heatmap, config, candidates, probability, detections,
                 heat.result(),
             )  # fmt: skip
         if model.calibration is not None:

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fingertips.data import FingertipDataConfig, data_config_from_dict, generate_examples
-from fingertips.heatmap import CROP_HALF_M, PASSES, hand_centre, hand_crop
+from fingertips.heatmap import CROP_HALF_M, PASSES, CropCentre, frame_crop_centre, hand_crop
 from glovedb import __version__
 from glovedb._files import write_atomically
 from glovedb._validate import dataclass_from_table
@@ -171,11 +171,17 @@ def crop_units(points_m: NDArray[np.float64], centre: NDArray[np.float64]) -> ND
 
 
 def render_crops(
-    data: FingertipDataConfig, seeds: Iterable[int], per_seed: int, *, progress: bool = False
+    data: FingertipDataConfig,
+    seeds: Iterable[int],
+    per_seed: int,
+    *,
+    centre: CropCentre = "density",
+    progress: bool = False,
 ) -> Crops:
     """Render ``per_seed`` frames for each seed and crop the hand of each.
 
-    Frames without an object in view are skipped.
+    ``centre`` is the crop centre's rule (:func:`fingertips.heatmap.frame_crop_centre`),
+    the detector's ``heatmap_centre``. Frames without an object in view are skipped.
     """
     from tqdm import tqdm
 
@@ -186,12 +192,12 @@ def render_crops(
             frames, total=per_seed, desc=f"crops (seed {seed})", unit="img", disable=not progress
         ):
             camera = np.asarray(example.intrinsics, dtype=np.float64)
-            centre = hand_centre(example.depth_m, camera)
-            if centre is None:
+            middle = frame_crop_centre(example.depth_m, camera, centre)
+            if middle is None:
                 continue
-            images.append(hand_crop(example.depth_m, camera, centre).astype(np.float16))
-            tips.append(crop_units(example.tips_m, centre))
-            local = (example.keypoints_m - centre).astype(np.float32)
+            images.append(hand_crop(example.depth_m, camera, middle).astype(np.float16))
+            tips.append(crop_units(example.tips_m, middle))
+            local = (example.keypoints_m - middle).astype(np.float32)
             whole.append(
                 bool(
                     (np.abs(local[:, :2]) < _WHOLE_HAND_XY_M).all()
@@ -216,13 +222,15 @@ def save_crops(
     *,
     data: FingertipDataConfig,
     seeds: Sequence[int],
+    centre: CropCentre = "density",
 ) -> None:
-    """Write ``crops`` to an ``.npz`` file, with the settings and seeds that rendered them.
+    """Write ``crops`` to an ``.npz`` file, with the settings, seeds and crop centre rule
+    that rendered them.
 
     Written under a temporary name and renamed, so an interrupted run leaves no
     damaged file.
     """
-    settings = {"data": crop_settings(data), "seeds": [int(s) for s in seeds]}
+    settings = {"data": crop_settings(data), "seeds": [int(s) for s in seeds], "centre": centre}
     arrays: dict[str, Any] = {
         "format": np.array(CROPS_FORMAT),
         "version": np.array(__version__),
@@ -235,7 +243,10 @@ def save_crops(
 
 
 def load_crops(
-    paths: Sequence[str | os.PathLike[str]], *, data: FingertipDataConfig | None = None
+    paths: Sequence[str | os.PathLike[str]],
+    *,
+    data: FingertipDataConfig | None = None,
+    centre: CropCentre | None = None,
 ) -> Crops:
     """Read crop files written by :func:`save_crops` and join them in the given order.
 
@@ -245,6 +256,9 @@ def load_crops(
     data : FingertipDataConfig, optional
         When given, every file must have been rendered with these settings (apart from
         the seed and the number of frames).
+    centre : {"density", "fingers"}, optional
+        When given, every file's crops must be centred by this rule (files written
+        before the rule was recorded are ``"density"``).
 
     Raises
     ------
@@ -268,6 +282,9 @@ def load_crops(
             raise ValueError(
                 f"{name}: crops rendered with other [heatmap.data] settings ({', '.join(changed)})"
             )
+        rule = settings.get("centre", "density")
+        if centre is not None and rule != centre:
+            raise ValueError(f"{name}: crops centred by the {rule!r} rule, expected {centre!r}")
         parts.append(part)
     return Crops(
         np.concatenate([p.images for p in parts]),

@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 from fingertips.detect import Detection
 from fingertips.evaluation import AnnotatedDepth, FingertipMetrics, FrameProgress, fingertip_metrics
 from fingertips.features import intrinsics_array
-from fingertips.heatmap import hand_centre, hand_crop, heat_peaks
+from fingertips.heatmap import CropCentre, frame_crop_centre, hand_crop, heat_peaks
 
 DEFAULT_THRESHOLDS = (0.5, 0.9, 0.97)
 """Heat thresholds ``glove fingertips eval-heatmap`` scores at."""
@@ -30,6 +30,7 @@ def network_detections(
     network: Callable[[NDArray[np.float32]], NDArray[np.float32]],
     *,
     min_value: float,
+    centre: CropCentre = "fingers",
 ) -> tuple[Detection, ...]:
     """The network's peaks in one frame whose mean heat exceeds ``min_value``.
 
@@ -42,6 +43,8 @@ def network_detections(
         Crop ``(CROP_PX, CROP_PX)`` to the maps ``(P, GRID, GRID)`` of every pass
         (:class:`fingertips.heatmap.HeatmapNetwork`).
     min_value : float
+    centre : {"density", "fingers"}
+        The crop centre's rule (:func:`fingertips.heatmap.frame_crop_centre`).
 
     Returns
     -------
@@ -50,11 +53,11 @@ def network_detections(
         is in view.
     """
     camera = intrinsics_array(intrinsics)
-    centre = hand_centre(depth_m, camera)
-    if centre is None:
+    middle = frame_crop_centre(depth_m, camera, centre)
+    if middle is None:
         return ()
-    maps = network(hand_crop(depth_m, camera, centre))
-    peaks = heat_peaks(maps.mean(axis=0), centre, depth_m, camera, min_value=min_value)
+    maps = network(hand_crop(depth_m, camera, middle))
+    peaks = heat_peaks(maps.mean(axis=0), middle, depth_m, camera, min_value=min_value)
     return tuple(
         Detection(
             u_px=float(uv[0]),
@@ -74,11 +77,13 @@ def evaluate_network(
     network: Callable[[NDArray[np.float32]], NDArray[np.float32]],
     *,
     thresholds: Sequence[float] = DEFAULT_THRESHOLDS,
+    centre: CropCentre = "fingers",
     progress: FrameProgress | None = None,
 ) -> dict[float, FingertipMetrics]:
     """Score the network's peaks on ``data`` at each heat threshold.
 
-    The network runs once per frame: the peaks above a threshold are those above the
+    The network runs once per frame on the crop centred by the ``centre`` rule
+    (:func:`network_detections`): the peaks above a threshold are those above the
     smallest one with a larger value.
 
     Raises
@@ -90,7 +95,10 @@ def evaluate_network(
         raise ValueError(f"thresholds: expected probabilities in [0, 1), got {list(thresholds)}")
     frames = data.depth_m if progress is None else progress(data.depth_m)
     lowest = min(thresholds)
-    found = [network_detections(d, data.intrinsics, network, min_value=lowest) for d in frames]
+    found = [
+        network_detections(d, data.intrinsics, network, min_value=lowest, centre=centre)
+        for d in frames
+    ]
     return {
         float(t): fingertip_metrics(
             [tuple(d for d in frame if d.confidence > t) for frame in found],

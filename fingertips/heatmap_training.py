@@ -314,7 +314,7 @@ def collect_heat_samples(
         raise ValueError("heatmap: the forest needs its peak verifier (a [verifier] table)")
     features, labels = [], []
     for depth_m, intrinsics, tips_m in images:
-        candidates, probability, hand = verified_candidates(
+        candidates, probability, hand, geodesic = verified_candidates(
             depth_m, intrinsics, forest, config=detector
         )
         peaks, frame_features = frame_heat_peaks(
@@ -327,6 +327,7 @@ def collect_heat_samples(
             min_value=config.min_value,
             min_tip_probability=detector.min_tip_probability,
             hand_depth_m=hand,
+            geodesic=geodesic if detector.heatmap_centre == "fingers" else None,
         )
         features.append(frame_features)
         labels.append(label_heat_peaks(peaks.xyz_m, tips_m, radius_m=config.match_radius_m))
@@ -392,7 +393,13 @@ def train_heatmap(
     frames = config.heatmap_data(data)
     crop_counts: dict[str, Any] = {"network": "given"}
     if network_onnx is None:
-        crops = render_crops(frames, config.crop_seeds, config.crops_per_seed, progress=progress)
+        crops = render_crops(
+            frames,
+            config.crop_seeds,
+            config.crops_per_seed,
+            centre=detector.heatmap_centre,
+            progress=progress,
+        )
         network_onnx = train_heatmap_network(crops, config, progress=progress)
         crop_counts = {
             "n_crops": len(crops.images),
@@ -400,7 +407,13 @@ def train_heatmap(
         }
     if config.quantize and not is_quantized(network_onnx):
         first_seed = config.crop_seeds[:1]
-        calibration = render_crops(frames, first_seed, config.quantize_crops, progress=progress)
+        calibration = render_crops(
+            frames,
+            first_seed,
+            config.quantize_crops,
+            centre=detector.heatmap_centre,
+            progress=progress,
+        )
         network_onnx = quantize_network(network_onnx, calibration.images, passes=config.passes)
     network = HeatmapNetwork(network_onnx, config.passes)
     parts = []

@@ -143,6 +143,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="folders with annotations.jsonl or groundtruth.jsonl",
     )
     eval_heatmap.add_argument(
+        "--centre",
+        choices=("density", "fingers"),
+        default="fingers",
+        help="the crop centre's rule (default: fingers, the geodesic stage's finger "
+        "candidates; density: the nearest object's densest 12 cm)",
+    )
+    eval_heatmap.add_argument(
         "--passes",
         type=int,
         choices=(1, 2, 4, 8),
@@ -269,6 +276,13 @@ def _add_model_options(parser: argparse.ArgumentParser) -> None:
         help="what the verifier scores: 'forest' (the vote peaks) or 'union' (and the "
         "geodesic finger candidates); default: the model's",
     )
+    parser.add_argument(
+        "--heatmap-centre",
+        choices=("density", "fingers"),
+        help="where the heatmap stage centres its crop: 'density' (the nearest object's "
+        "densest 12 cm) or 'fingers' (the geodesic stage's finger candidates); default: "
+        "the model's",
+    )
 
 
 def _positive(name: str, value: int | None) -> int | None:
@@ -358,26 +372,28 @@ def _heatmap_network(path: str) -> Any:
         raise ValueError(f"--heatmap-network {error}") from error
 
 
-def _heatmap_recipe(path: str) -> tuple[Any, Any]:
-    """The config's ``[heatmap]`` settings and the data settings of its crops."""
+def _heatmap_recipe(path: str) -> tuple[Any, Any, Any]:
+    """The config's ``[heatmap]`` settings, the data settings of its crops and their
+    centre rule (the ``[detector]``'s ``heatmap_centre``)."""
     from fingertips.training import load_recipe
 
     recipe = load_recipe(path)
     if recipe.heatmap is None:
         raise ValueError(f"{path}: no [heatmap] table")
-    return recipe.heatmap, recipe.heatmap.heatmap_data(recipe.data)
+    data = recipe.heatmap.heatmap_data(recipe.data)
+    return recipe.heatmap, data, recipe.detector.heatmap_centre
 
 
 def run_crops(args: argparse.Namespace) -> int:
     from fingertips.heatmap_data import render_crops, save_crops
 
     out = _output_file(args.out, ".npz", "a crop file")
-    heatmap, data = _heatmap_recipe(args.config)
+    heatmap, data, centre = _heatmap_recipe(args.config)
     seeds = args.seed or heatmap.crop_seeds
     per_seed = _positive("--images", args.images) or heatmap.crops_per_seed
     started = time.perf_counter()
-    crops = render_crops(data, seeds, per_seed, progress=sys.stderr.isatty())
-    save_crops(crops, out, data=data, seeds=seeds)
+    crops = render_crops(data, seeds, per_seed, centre=centre, progress=sys.stderr.isatty())
+    save_crops(crops, out, data=data, seeds=seeds, centre=centre)
     print(
         f"wrote {out} ({len(crops.images)} crops, {int(crops.whole_hand.sum())} of whole "
         f"hands) in {time.perf_counter() - started:.0f} s"
@@ -390,14 +406,19 @@ def run_train_heatmap(args: argparse.Namespace) -> int:
     from glovedb._files import write_atomically
 
     out = _output_file(args.out, ".onnx", "a network file")
-    heatmap, data = _heatmap_recipe(args.config)
+    heatmap, data, centre = _heatmap_recipe(args.config)
     require_training_extra()
     started = time.perf_counter()
     if args.crops:
-        crops = load_crops(args.crops, data=data)
+        crops = load_crops(args.crops, data=data, centre=centre)
     else:
-        progress = sys.stderr.isatty()
-        crops = render_crops(data, heatmap.crop_seeds, heatmap.crops_per_seed, progress=progress)
+        crops = render_crops(
+            data,
+            heatmap.crop_seeds,
+            heatmap.crops_per_seed,
+            centre=centre,
+            progress=sys.stderr.isatty(),
+        )
     from fingertips.heatmap_training import train_heatmap_network
 
     network = train_heatmap_network(crops, heatmap, progress=sys.stderr.isatty())
@@ -420,7 +441,9 @@ def run_eval_heatmap(args: argparse.Namespace) -> int:
     results: dict[str, Any] = {}
     for folder in args.inputs:
         data = read_annotated_depth(folder, annotations=_annotation_file(Path(folder)))
-        scores = evaluate_network(data, network, thresholds=thresholds, progress=_progress)
+        scores = evaluate_network(
+            data, network, thresholds=thresholds, centre=args.centre, progress=_progress
+        )
         results[folder] = {str(t): m.as_dict() for t, m in scores.items()}
         for t, m in scores.items():
             if not args.json:
@@ -493,6 +516,8 @@ def _load_model(args: argparse.Namespace) -> tuple[Any, Any]:
         config = replace(config, segmentation=args.segmentation)
     if args.candidates is not None:
         config = replace(config, candidates=args.candidates)
+    if args.heatmap_centre is not None:
+        config = replace(config, heatmap_centre=args.heatmap_centre)
     return model, config
 
 

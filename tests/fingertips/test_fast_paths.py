@@ -5,13 +5,21 @@ definition the kernels are held to, bit for bit.
 """
 
 import math
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from numpy.typing import NDArray
 from scipy.ndimage import distance_transform_edt
 
-from fingertips.detect import hand_depth, model_detector_config
+from fingertips.detect import (
+    detect_fingertips,
+    detection_points,
+    hand_depth,
+    model_detector_config,
+    verified_candidates,
+)
 from fingertips.features import (
     BACKGROUND_DEPTH_M,
     mask_depth_range,
@@ -20,7 +28,13 @@ from fingertips.features import (
     probe_image,
 )
 from fingertips.forest import DEFAULT_MODEL_PATH, load_forest
-from fingertips.geodesic import cell_grid, median_3x3, palm_centre, surface_graph
+from fingertips.geodesic import (
+    cell_grid,
+    geodesic_candidates,
+    median_3x3,
+    palm_centre,
+    surface_graph,
+)
 from fingertips.heatmap import hand_heatmaps, heatmap_peaks, start_heatmaps
 
 CAMERA = np.array([525.0, 525.0, 319.5, 239.5])
@@ -178,6 +192,67 @@ def test_overlapped_heatmaps_give_the_sequential_detections() -> None:
     plain = heatmap_peaks(*common, min_tip_probability=0.75, hand_depth_m=hand)
     np.testing.assert_array_equal(with_started[0].xyz_m, plain[0].xyz_m)
     np.testing.assert_array_equal(with_started[1], plain[1])
+
+
+def test_overlapped_heatmaps_centred_on_the_fingers_give_the_sequential_ones() -> None:
+    """The network thread waits for the geodesic stage's worker, then crops as the
+    sequential path does with the same geodesic candidates."""
+    model = load_forest(DEFAULT_MODEL_PATH)
+    assert model.heatmap is not None
+    config = model_detector_config(model)
+    depth = _hand_like_depth()
+    hand = hand_depth(depth, model, depth_band_m=config.depth_band_m)
+    geodesic = geodesic_candidates(hand, CAMERA)
+    assert geodesic.is_finger.sum() >= 4
+    with ThreadPoolExecutor(1) as worker:
+        future = worker.submit(geodesic_candidates, hand, CAMERA)
+        started = start_heatmaps(depth, CAMERA, model.heatmap, geodesic=future).result()
+    sequential = hand_heatmaps(
+        depth, CAMERA, model.heatmap.heatmaps, hand_depth_m=hand, geodesic=geodesic
+    )
+    density = hand_heatmaps(depth, CAMERA, model.heatmap.heatmaps, hand_depth_m=hand)
+    assert started.centre is not None and sequential.centre is not None
+    np.testing.assert_array_equal(started.centre, sequential.centre)
+    np.testing.assert_array_equal(started.maps, sequential.maps)
+    assert density.centre is not None
+    assert np.linalg.norm(started.centre - density.centre) > 0.01  # another rule indeed
+
+
+@pytest.mark.parametrize("candidates", ["forest", "union"])
+def test_detection_with_the_fingers_rule_crops_where_the_geodesic_stage_says(
+    candidates: str,
+) -> None:
+    """Also with the forest's candidates alone, which do not need the geodesic stage
+    otherwise: the detector starts it for the crop."""
+    model = load_forest(DEFAULT_MODEL_PATH)
+    assert model.heatmap is not None
+    config = replace(
+        model_detector_config(model),
+        candidates=candidates,
+        heatmap_centre="fingers",
+        heatmap_min_probability=0.01,
+    )
+    depth = _hand_like_depth()
+    found = detect_fingertips(depth, CAMERA, model, config=config)
+    verified = verified_candidates(depth, CAMERA, model, config=config)
+    assert verified.geodesic is not None and verified.hand_depth_m is not None
+    heatmaps = hand_heatmaps(depth, CAMERA, model.heatmap.heatmaps, geodesic=verified.geodesic)
+    peaks, probability = heatmap_peaks(
+        depth,
+        CAMERA,
+        model.heatmap,
+        verified.candidates.positions_m,
+        verified.candidates.confidences,
+        verified.probability,
+        min_tip_probability=config.min_tip_probability,
+        heatmaps=heatmaps,
+    )
+    from_heat = [d for d in found if d.source == "heatmap"]
+    assert from_heat
+    for detection in from_heat:
+        k = np.argmin(np.linalg.norm(peaks.xyz_m - detection_points([detection]), axis=1))
+        np.testing.assert_allclose(peaks.xyz_m[k], detection_points([detection])[0], atol=1e-6)
+        assert probability[k] >= config.heatmap_min_probability
 
 
 def test_no_object_in_view_gives_no_heatmaps() -> None:

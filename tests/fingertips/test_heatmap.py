@@ -22,8 +22,10 @@ from fingertips import (
     detect_fingertips,
     name_fingers,
 )
-from fingertips.detect import detection_points
+from fingertips.data import FingertipDataConfig, generate_examples
+from fingertips.detect import detection_points, detector_config_from_dict
 from fingertips.forest import load_forest, save_forest
+from fingertips.geodesic import no_candidates
 from fingertips.heatmap import (
     CROP_HALF_M,
     CROP_PX,
@@ -34,7 +36,10 @@ from fingertips.heatmap import (
     HeatPeaks,
     boosted_probability,
     crop_cell_pixels,
+    crop_centre,
     crop_views,
+    finger_centre,
+    frame_crop_centre,
     hand_centre,
     hand_crop,
     heat_peaks,
@@ -168,6 +173,62 @@ def test_hand_centre_needs_twenty_points() -> None:
     depth = np.zeros((60, 80), np.float32)
     depth[10, 10:29] = 0.5
     assert hand_centre(depth, CAMERA) is None
+
+
+def test_finger_centre_is_the_fingers_mean_moved_onto_the_points_within_8_cm() -> None:
+    fingers = np.array([[0.0, -0.10, 0.50], [0.04, -0.08, 0.50]])  # mean (0.02, -0.09)
+    near = np.column_stack([np.full(30, 0.03), np.linspace(-0.12, -0.04, 30), np.full(30, 0.52)])
+    far = np.tile([0.0, 0.25, 0.55], (500, 1))  # a forearm's points, 34 cm away: ignored
+    points = np.concatenate([near, far])
+    centre = finger_centre([0.0, 0.0, 0.5], fingers, points)
+    np.testing.assert_allclose(centre, near.mean(axis=0))
+    # Without fingers the palm centre is the start; with too few points near, it stays.
+    np.testing.assert_allclose(finger_centre([0.0, 0.0, 0.5], np.zeros((0, 3)), far), [0, 0, 0.5])
+    np.testing.assert_allclose(
+        finger_centre([0.0, 0.0, 0.5], fingers, near[:19]), [0.02, -0.09, 0.5]
+    )
+
+
+def test_crop_centre_falls_back_to_the_density_rule_without_a_palm() -> None:
+    camera = np.array([300.0, 300.0, 80.0, 60.0])
+    depth = np.zeros((120, 160), np.float32)
+    depth[30:70, 80:120] = 0.50
+    no_palm = no_candidates()
+    expected = hand_centre(depth, camera)
+    assert expected is not None
+    np.testing.assert_array_equal(crop_centre(depth, camera), expected)
+    np.testing.assert_array_equal(crop_centre(depth, camera, geodesic=no_palm), expected)
+    np.testing.assert_array_equal(frame_crop_centre(depth, camera, "density"), expected)
+    with pytest.raises(ValueError, match="rule"):
+        frame_crop_centre(depth, camera, "middle")  # type: ignore[arg-type]
+
+
+def test_the_fingers_rule_centres_a_rendered_hand_whose_forearm_pulls_the_density_rule() -> None:
+    """Open hands with a forearm, facing the camera at 0.4-0.8 m: the forearm's points
+    pull the densest 12 cm off the hand; the fingers' mean stays on it."""
+    config = FingertipDataConfig(
+        n_images=8,
+        noise=("none",),
+        seed=5,
+        forearm_probability=1.0,
+        plane_probability=0.0,
+        distance_range_m=(0.4, 0.8),
+        posture_mix=(1.0, 0.0, 0.0),
+        facing_fraction=1.0,
+    )
+    errors = {"density": [], "fingers": []}
+    for example in generate_examples(config):
+        truth = example.keypoints_m.mean(axis=0)
+        visible = example.tips_m[np.isfinite(example.tips_m).all(axis=1)]
+        for rule, found in errors.items():
+            centre = frame_crop_centre(example.depth_m, example.intrinsics, rule)  # type: ignore[arg-type]
+            assert centre is not None
+            found.append(np.linalg.norm(centre - truth))
+            if rule == "fingers":
+                assert (np.abs(visible - centre) < CROP_HALF_M).all()  # every tip in the crop
+    assert max(errors["fingers"]) < 0.05
+    assert max(errors["density"]) > 0.08  # the forearm pulls it off the hand
+    assert np.median(errors["fingers"]) < 0.6 * np.median(errors["density"])
 
 
 # --- peaks --------------------------------------------------------------------------
@@ -446,6 +507,14 @@ def test_detection_in_an_empty_or_cold_frame_adds_nothing() -> None:
     assert detect_fingertips(empty, INTRINSICS, _heatmap_model(), config=config) == ()
     flat = np.full((80, 80), PLATE_M, np.float32)  # in view, but nothing in front
     assert detect_fingertips(flat, INTRINSICS, _heatmap_model(), config=config) == ()
+
+
+def test_the_crop_centre_rule_is_a_checked_recorded_setting() -> None:
+    config = DetectorConfig(heatmap_centre="fingers")
+    assert detector_config_from_dict(config.as_dict()) == config
+    assert DetectorConfig().heatmap_centre == "density"  # models recorded without it
+    with pytest.raises(ValueError, match="heatmap_centre"):
+        DetectorConfig(heatmap_centre="palm")  # type: ignore[arg-type]
 
 
 def test_heatmap_threshold_needs_the_forest_verifier_threshold() -> None:

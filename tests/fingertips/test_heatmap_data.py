@@ -78,3 +78,13 @@ def test_crop_files_of_other_settings_or_formats_are_refused(tmp_path: Path) -> 
         load_crops([tmp_path / "missing.npz"])
     with pytest.raises(ValueError, match="at least one"):
         load_crops([])
+
+
+def test_crops_of_another_centre_rule_are_refused(tmp_path: Path) -> None:
+    data = FingertipDataConfig()
+    save_crops(_crops(2, 0), tmp_path / "f.npz", data=data, seeds=[1], centre="fingers")
+    save_crops(_crops(2, 1), tmp_path / "d.npz", data=data, seeds=[2])  # the default rule
+    assert len(load_crops([tmp_path / "f.npz"], centre="fingers").images) == 2
+    assert len(load_crops([tmp_path / "d.npz"], centre="density").images) == 2
+    with pytest.raises(ValueError, match=r"f\.npz: crops centred by the 'fingers' rule"):
+        load_crops([tmp_path / "d.npz", tmp_path / "f.npz"], centre="density")
