@@ -34,6 +34,7 @@ from fingertips.features import (
 )
 from fingertips.forest import FingertipForest, apply_probe_image, predict_leaves
 from fingertips.geodesic import GeodesicCandidates, geodesic_candidates
+from fingertips.heat_fusion import candidate_heat, fused_probability
 from fingertips.heatmap import (
     CROP_CENTRES,
     HAND_BAND_M,
@@ -130,9 +131,11 @@ class DetectorConfig:
         the time per frame when a background surface lies within the band); 0: no
         bound. Vote weights scale with the stride, so confidences do not change.
     min_tip_probability : float
-        Peaks whose verifier probability (:mod:`fingertips.verify`) is below
-        this are dropped; 0 keeps every peak above ``c_thr`` (and is the only value
-        allowed for a model without a verifier). With a verifier, ``c_thr`` only
+        Peaks whose verifier probability (:mod:`fingertips.verify`; fused with the
+        heat of their map cell when the heatmap stage is on and the model has a fusion,
+        :mod:`fingertips.heat_fusion`) is below this are dropped; 0 keeps every peak
+        above ``c_thr`` (and is the only value allowed for a model without a
+        verifier). With a verifier, ``c_thr`` only
         selects the candidate peaks.
     heatmap_min_probability : float
         Peaks of the model's heatmap stage (:mod:`fingertips.heatmap`) whose
@@ -575,17 +578,22 @@ def detect_fingertips(
             heat = start_heatmaps(depth, camera, heatmap, geodesic=geodesic)
         candidates, features = _candidates(masked, camera, model, config, geodesic)
         probability = verify_peaks(model.verifier, features)
+        heatmaps = None if heat is None else heat.result()
+        tip_probability = probability
+        if heatmaps is not None and heatmap is not None and heatmap.fusion is not None:
+            heat_there = candidate_heat(heatmaps, candidates.positions_m)
+            tip_probability = fused_probability(heatmap.fusion, probability, heat_there)
         # With the verifier off (min_tip_probability 0) the vote weight ranks, as without one.
-        rank_by = probability if config.min_tip_probability > 0 else candidates.confidences
-        keep = (probability >= config.min_tip_probability) & _separated(
+        rank_by = tip_probability if config.min_tip_probability > 0 else candidates.confidences
+        keep = (tip_probability >= config.min_tip_probability) & _separated(
             candidates, rank_by, config.voting.min_separation_m
         )
-        detections = _candidate_detections(candidates, probability, camera, keep)
-        if heat is not None and heatmap is not None:
+        detections = _candidate_detections(candidates, tip_probability, camera, keep)
+        if heatmaps is not None and heatmap is not None:
+            # The heatmap's verifier reads the peak verifier's own probabilities.
             detections += _heatmap_detections(
-                depth, camera, heatmap, config, candidates, probability, detections,
-                heat.result(),
-            )  # fmt: skip
+                depth, camera, heatmap, config, candidates, probability, detections, heatmaps
+            )
         if model.calibration is not None:
             detections = calibrated_detections(detections, model.calibration)
     if model_tips_m is None:

@@ -252,6 +252,11 @@ def _heatmap_arrays(stage: HeatmapStage | None) -> dict[str, NDArray]:
         "heatmap_passes": np.array(stage.passes, dtype=np.int64),
         "heatmap_min_value": np.array(stage.min_value, dtype=np.float64),
         "heatmap_features": np.array(HEAT_PEAK_FEATURES),
+        **(
+            {}
+            if stage.fusion is None
+            else {"heatmap_fusion": np.asarray(stage.fusion, dtype=np.float64)}
+        ),
     }
 
 
@@ -274,6 +279,7 @@ def _read_heatmap(data: Any, path: str) -> HeatmapStage | None:
         baseline=float(data["heatmap_baseline"]),
         passes=int(data["heatmap_passes"]),
         min_value=float(data["heatmap_min_value"]),
+        fusion=data["heatmap_fusion"].astype(np.float64) if "heatmap_fusion" in data else None,
     )
 
 

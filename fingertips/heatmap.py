@@ -573,6 +573,11 @@ class HeatmapStage:
         Averaged passes the verifier was trained with (:func:`crop_views`).
     min_value : float
         Smallest mean heat of a peak the verifier looks at.
+    fusion : (3,) float64 or None
+        The candidates' fused log-odds (:func:`fingertips.heat_fusion.fused_probability`):
+        intercept, weight of
+        the peak verifier's log-odds, weight of the heat's log-odds at the candidate;
+        None (models trained before it): the peak verifier's probability stands.
     """
 
     network_onnx: NDArray[np.uint8]
@@ -585,9 +590,12 @@ class HeatmapStage:
     baseline: float
     passes: int = 8
     min_value: float = 0.3
+    fusion: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         check_tree_table(self, len(HEAT_PEAK_FEATURES))
+        if self.fusion is not None:
+            as_array("fusion", self.fusion, (3,), np.float64, finite=True)
         as_array("node_value", self.node_value, (self.node_feature.shape[0],), finite=True)
         as_array("network_onnx", self.network_onnx, (None,), np.uint8)
         if self.passes not in PASSES:

@@ -81,6 +81,9 @@ class HeatmapTrainingConfig:
         its verifier is fitted on what it gives. Needs the ``onnx`` package.
     quantize_crops : int
         Frames of the first crop seed whose crops calibrate the quantization.
+    fuse_candidates : bool
+        Fit the candidates' fusion of the peak verifier and the heat
+        (:func:`fingertips.heat_fusion.fused_probability`) on the verifier's frames.
     seed : int
         Seeds PyTorch, the crop order and the boosting.
     """
@@ -106,6 +109,7 @@ class HeatmapTrainingConfig:
     verifier_learning_rate: float = 0.05
     quantize: bool = False
     quantize_crops: int = 200
+    fuse_candidates: bool = True
     seed: int = 0
 
     def __post_init__(self) -> None:

@@ -21,6 +21,12 @@ at run time does. Four steps, all deterministic on a CPU:
    :func:`fingertips.heatmap.heat_peak_features` and labelled true when within
    ``match_radius_m`` of a visible fingertip; scikit-learn's histogram gradient boosting
    learns the label and is exported to a node table.
+5. **Fusion** (:func:`fingertips.heat_fusion.fit_candidate_fusion`, with
+   ``fuse_candidates``): on the same frames every candidate of the forest and the
+   geodesic stage, labelled the same way, gives its peak verifier probability and the
+   heat of its map cell; a logistic regression of the label on both log-odds is the
+   candidates' fused probability at detection
+   (:func:`fingertips.heat_fusion.fused_probability`).
 """
 
 from __future__ import annotations
@@ -31,7 +37,7 @@ import tempfile
 import time
 import warnings
 from collections.abc import Iterable
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -44,12 +50,14 @@ from torch import nn
 from fingertips.data import FingertipDataConfig, generate_examples
 from fingertips.detect import DetectorConfig, verified_candidates
 from fingertips.forest import FingertipForest
+from fingertips.heat_fusion import candidate_heat, fit_candidate_fusion
 from fingertips.heatmap import (
     GRID,
     HEAT_PEAK_FEATURES,
     HeatmapNetwork,
     HeatmapStage,
     frame_heat_peaks,
+    hand_heatmaps,
 )
 from fingertips.heatmap_data import Crops, HeatmapTrainingConfig, render_crops
 from fingertips.heatmap_quantization import is_quantized, quantize_network
@@ -284,6 +292,30 @@ def label_heat_peaks(
     return np.linalg.norm(xyz_m[:, None] - visible[None], axis=2).min(axis=1) <= radius_m
 
 
+@dataclass(frozen=True)
+class HeatSamples:
+    """Labelled samples of the heatmap stage's two fits on annotated frames.
+
+    Attributes
+    ----------
+    features : (N, len(HEAT_PEAK_FEATURES)) float32
+        The heat peaks' verifier features.
+    labels : (N,) bool
+        Which peaks lie within ``match_radius_m`` of a visible fingertip.
+    candidate_probability, candidate_heat : (M,) float32
+        Every candidate's peak verifier probability and the heat of its map cell
+        (:func:`fingertips.heatmap.candidate_heat`): the fusion's inputs.
+    candidate_labels : (M,) bool
+        Which candidates lie within ``match_radius_m`` of a visible fingertip.
+    """
+
+    features: NDArray[np.float32]
+    labels: NDArray[np.bool_]
+    candidate_probability: NDArray[np.float32]
+    candidate_heat: NDArray[np.float32]
+    candidate_labels: NDArray[np.bool_]
+
+
 def collect_heat_samples(
     images: Iterable[tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.float64]]],
     forest: FingertipForest,
@@ -291,8 +323,8 @@ def collect_heat_samples(
     *,
     detector: DetectorConfig,
     config: HeatmapTrainingConfig,
-) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
-    """The heatmap's peaks on annotated frames, with their features and labels.
+) -> HeatSamples:
+    """The heatmap's peaks and the candidates on annotated frames, with their labels.
 
     Parameters
     ----------
@@ -302,20 +334,24 @@ def collect_heat_samples(
         With its peak verifier (the features use its candidates and probabilities).
     network : HeatmapNetwork
     detector : DetectorConfig
-        Its ``c_thr``, voting and ``min_tip_probability`` make the forest's part.
+        Its ``c_thr``, voting, ``min_tip_probability`` and ``heatmap_centre`` make the
+        forest's part and the crop.
     config : HeatmapTrainingConfig
-
-    Returns
-    -------
-    features : (N, len(HEAT_PEAK_FEATURES)) float32
-    labels : (N,) bool
     """
     if forest.verifier is None:
         raise ValueError("heatmap: the forest needs its peak verifier (a [verifier] table)")
     features, labels = [], []
+    candidate_probability, candidate_heats, candidate_labels = [], [], []
     for depth_m, intrinsics, tips_m in images:
         candidates, probability, hand, geodesic = verified_candidates(
             depth_m, intrinsics, forest, config=detector
+        )
+        heatmaps = hand_heatmaps(
+            depth_m,
+            intrinsics,
+            network,
+            hand_depth_m=hand,
+            geodesic=geodesic if detector.heatmap_centre == "fingers" else None,
         )
         peaks, frame_features = frame_heat_peaks(
             depth_m,
@@ -326,14 +362,30 @@ def collect_heat_samples(
             probability,
             min_value=config.min_value,
             min_tip_probability=detector.min_tip_probability,
-            hand_depth_m=hand,
-            geodesic=geodesic if detector.heatmap_centre == "fingers" else None,
+            heatmaps=heatmaps,
         )
         features.append(frame_features)
         labels.append(label_heat_peaks(peaks.xyz_m, tips_m, radius_m=config.match_radius_m))
+        points = candidates.positions_m.astype(np.float64)
+        candidate_probability.append(probability.astype(np.float32))
+        candidate_heats.append(candidate_heat(heatmaps, points))
+        candidate_labels.append(label_heat_peaks(points, tips_m, radius_m=config.match_radius_m))
     if not features:
-        return np.zeros((0, len(HEAT_PEAK_FEATURES)), np.float32), np.zeros(0, bool)
-    return np.concatenate(features), np.concatenate(labels)
+        none = np.zeros(0, np.float32)
+        return HeatSamples(
+            np.zeros((0, len(HEAT_PEAK_FEATURES)), np.float32),
+            np.zeros(0, bool),
+            none,
+            none,
+            np.zeros(0, bool),
+        )
+    return HeatSamples(
+        np.concatenate(features),
+        np.concatenate(labels),
+        np.concatenate(candidate_probability),
+        np.concatenate(candidate_heats),
+        np.concatenate(candidate_labels),
+    )
 
 
 def fit_heat_verifier(
@@ -434,13 +486,21 @@ def train_heatmap(
         parts.append(
             collect_heat_samples(images, forest, network, detector=detector, config=config)
         )
-    features = np.concatenate([part[0] for part in parts])
-    labels = np.concatenate([part[1] for part in parts])
+    features = np.concatenate([part.features for part in parts])
+    labels = np.concatenate([part.labels for part in parts])
     table = pack_boosted_table(fit_heat_verifier(features, labels, config))
+    fusion = None
+    if config.fuse_candidates:
+        fusion = fit_candidate_fusion(
+            np.concatenate([part.candidate_probability for part in parts]),
+            np.concatenate([part.candidate_heat for part in parts]),
+            np.concatenate([part.candidate_labels for part in parts]),
+        )
     stage = HeatmapStage(
         network_onnx=network_onnx,
         passes=config.passes,
         min_value=config.min_value,
+        fusion=fusion,
         **table,
     )
     settings = {
@@ -450,6 +510,8 @@ def train_heatmap(
             **crop_counts,
             "n_peaks": int(labels.size),
             "n_true_peaks": int(labels.sum()),
+            "n_candidates": int(sum(part.candidate_labels.size for part in parts)),
+            "fusion": None if fusion is None else [float(w) for w in fusion],
         },
         "detector": detector.as_dict(),
     }

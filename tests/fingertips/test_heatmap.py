@@ -26,11 +26,18 @@ from fingertips.data import FingertipDataConfig, generate_examples
 from fingertips.detect import detection_points, detector_config_from_dict
 from fingertips.forest import load_forest, save_forest
 from fingertips.geodesic import no_candidates
+from fingertips.heat_fusion import (
+    candidate_heat,
+    fit_candidate_fusion,
+    fused_probability,
+    log_odds,
+)
 from fingertips.heatmap import (
     CROP_HALF_M,
     CROP_PX,
     GRID,
     HEAT_PEAK_FEATURES,
+    HandHeatmaps,
     HeatmapNetwork,
     HeatmapStage,
     HeatPeaks,
@@ -42,6 +49,7 @@ from fingertips.heatmap import (
     frame_crop_centre,
     hand_centre,
     hand_crop,
+    hand_heatmaps,
     heat_peaks,
     heatmap_peaks,
     unturn_maps,
@@ -390,6 +398,14 @@ def test_model_file_keeps_the_heatmap_stage(tmp_path: Path) -> None:
         np.testing.assert_array_equal(getattr(loaded, name), getattr(stage, name), err_msg=name)
         assert getattr(loaded, name).dtype == getattr(stage, name).dtype, name
     assert (loaded.baseline, loaded.passes, loaded.min_value) == (0.25, 2, 0.4)
+    assert loaded.fusion is None
+    fused = replace(forest, heatmap=replace(stage, fusion=np.array([-1.0, 0.75, 0.5])))
+    save_forest(fused, tmp_path / "f.npz")
+    fused_stage = load_forest(tmp_path / "f.npz").heatmap
+    assert fused_stage is not None and fused_stage.fusion is not None
+    np.testing.assert_array_equal(fused_stage.fusion, [-1.0, 0.75, 0.5])
+    with pytest.raises(ValueError, match="fusion"):
+        replace(stage, fusion=np.array([1.0, np.nan, 0.0]))
 
     with np.load(tmp_path / "m.npz") as data:
         arrays = dict(data)
@@ -515,6 +531,79 @@ def test_the_crop_centre_rule_is_a_checked_recorded_setting() -> None:
     assert DetectorConfig().heatmap_centre == "density"  # models recorded without it
     with pytest.raises(ValueError, match="heatmap_centre"):
         DetectorConfig(heatmap_centre="palm")  # type: ignore[arg-type]
+
+
+# --- fusion of the candidates ---------------------------------------------------------
+
+
+def test_candidate_heat_reads_the_cell_a_point_falls_in() -> None:
+    centre = np.array([0.02, -0.01, 0.6])
+    maps = np.zeros((2, GRID, GRID), np.float32)
+    maps[0, 5, 20], maps[1, 5, 20] = 0.5, 0.9  # row 5, column 20: mean 0.7
+    heatmaps = HandHeatmaps(centre, maps)
+    # Cell (column 20, row 5) centre, in the crop's units, seen along its ray at 0.5 m.
+    unit = (np.array([20, 5]) + 0.5) / GRID * 2 - 1
+    ray = centre[:2] / centre[2] + unit * CROP_HALF_M / centre[2]
+    inside = np.array([*ray * 0.5, 0.5])
+    outside = np.array([*(centre[:2] / centre[2] + 1.2 * CROP_HALF_M / centre[2]) * 0.6, 0.6])
+    heat = candidate_heat(heatmaps, np.stack([inside, outside, centre]))
+    np.testing.assert_allclose(heat, [0.7, 0.0, 0.0], atol=1e-7)
+    assert candidate_heat(HandHeatmaps(None, None), [inside]).tolist() == [0.0]
+    assert candidate_heat(heatmaps, np.zeros((0, 3))).shape == (0,)
+
+
+def test_fused_probability_is_the_logistic_of_both_log_odds() -> None:
+    p, heat = np.array([0.5, 0.9, 0.2, 1.0]), np.array([0.5, 0.5, 0.99, 0.0])
+    fused = fused_probability([0.3, 1.5, -0.5], p, heat)
+    z = 0.3 + 1.5 * np.log(p.clip(1e-4, 1 - 1e-4) / (1 - p.clip(1e-4, 1 - 1e-4)))
+    z -= 0.5 * np.log(heat.clip(1e-4, 1 - 1e-4) / (1 - heat.clip(1e-4, 1 - 1e-4)))
+    np.testing.assert_allclose(fused, 1 / (1 + np.exp(-z)), rtol=1e-6)
+    np.testing.assert_allclose(
+        fused_probability([0.0, 1.0, 0.0], p[:3], heat[:3]), p[:3], rtol=1e-6
+    )
+    np.testing.assert_allclose(log_odds([0.0, 0.5, 1.0]), [-9.2102, 0.0, 9.2102], atol=1e-4)
+
+
+def test_fit_candidate_fusion_recovers_a_logistic_model() -> None:
+    rng = np.random.default_rng(4)
+    p = rng.uniform(0.01, 0.99, 20000).astype(np.float32)
+    heat = rng.uniform(0.01, 0.99, 20000).astype(np.float32)
+    truth = np.array([-0.5, 0.8, 1.6])
+    chance = 1 / (1 + np.exp(-(truth[0] + truth[1] * log_odds(p) + truth[2] * log_odds(heat))))
+    labels = rng.uniform(size=p.size) < chance
+    np.testing.assert_allclose(fit_candidate_fusion(p, heat, labels), truth, atol=0.1)
+    with pytest.raises(ValueError, match="both true and false"):
+        fit_candidate_fusion(p, heat, np.ones(p.size, bool))
+
+
+def test_detection_keeps_candidates_by_their_fused_probability() -> None:
+    """The toy forest's one candidate (verifier 0.9) on the stub, whose cell the tiny
+    network leaves cold: fusion [0, 1, 0] leaves the verifier's probability, [0, 0, 1]
+    makes it the cold heat and drops the candidate (the stub's own heat peak, no longer
+    beside a detection, then joins), [12, 0, 1] keeps it at sigmoid(12 +
+    log_odds(heat)); the heat peaks keep reading the verifier's 0.9."""
+    depth = _stub_and_domes()
+    config = replace(STRIDE_1, min_tip_probability=0.5, heatmap_min_probability=0.2)
+    model = _heatmap_model()
+    assert model.heatmap is not None
+    plain = detect_fingertips(depth, INTRINSICS, model, config=config)
+    (tip,) = [d for d in plain if d.source == "forest"]
+    heatmaps = hand_heatmaps(depth, INTRINSICS, model.heatmap.heatmaps)
+    (heat,) = candidate_heat(heatmaps, detection_points([tip]))
+    assert heat < 0.01
+
+    def with_fusion(weights: list[float]) -> tuple[Detection, ...]:
+        stage = replace(model.heatmap, fusion=np.array(weights))
+        return detect_fingertips(depth, INTRINSICS, replace(model, heatmap=stage), config=config)
+
+    assert with_fusion([0.0, 1.0, 0.0]) == plain
+    dropped = with_fusion([0.0, 0.0, 1.0])
+    assert [d.source for d in dropped] == ["heatmap"] * 3
+    assert set(plain[1:]) < set(dropped)
+    kept = with_fusion([12.0, 0.0, 1.0])
+    assert kept[0].source == "forest" and kept[1:] == plain[1:]
+    expected = 1 / (1 + np.exp(-(12.0 + log_odds(heat))))
+    assert kept[0].tip_probability == pytest.approx(expected, rel=1e-5)
 
 
 def test_heatmap_threshold_needs_the_forest_verifier_threshold() -> None:
