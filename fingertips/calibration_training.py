@@ -3,9 +3,11 @@
 The detector runs on every frame twice, with the model's recorded settings except:
 
 - for the ``"verifier"`` map, ``min_tip_probability`` lowered to ``min_probability``
-  and the heatmap stage off: the forest's and geodesic detections of (almost) every
-  verifier probability. Detections at a threshold are exactly those of this run
-  with a probability that reaches it (the separation of detections does not depend
+  and the heatmap stage off (on, when the model fuses the candidates' probabilities
+  with the heat, :mod:`fingertips.heat_fusion`; its peaks are then left out): the
+  forest's and geodesic detections of (almost) every verifier probability.
+  Detections at a threshold are exactly those of this run with a probability that
+  reaches it (the separation of detections does not depend
   on the threshold), so the map holds for any ``min_tip_probability`` at or above
   ``min_probability``;
 - for the ``"heatmap"`` map, ``heatmap_min_probability`` lowered to
@@ -179,9 +181,15 @@ def calibration_samples(
         )
     model = without_calibration(model)
     detector = config if config is not None else model_detector_config(model)
+    # With a fusion (fingertips.heat_fusion) the candidates' probabilities need the
+    # heatmap stage on; its peaks are then left out of the first run's matching.
+    fused = model.heatmap is not None and model.heatmap.fusion is not None
+    heat_for_fusion = detector.heatmap_min_probability if fused else 0.0
     runs: dict[ScoreKind, DetectorConfig] = {
         "verifier": replace(
-            detector, min_tip_probability=min_probability, heatmap_min_probability=0.0
+            detector,
+            min_tip_probability=min_probability,
+            heatmap_min_probability=heat_for_fusion,
         )
     }
     if model.heatmap is not None:
@@ -192,7 +200,10 @@ def calibration_samples(
     for kind, settings in runs.items():
         found = run_detector(frames, model, config=settings, progress=progress)[0]
         scores, correct = [], []
-        for detections, tips in zip(found, frames.tips_m, strict=True):
+        for frame_detections, tips in zip(found, frames.tips_m, strict=True):
+            detections = tuple(d for d in frame_detections if SOURCE_SCORE[d.source] == kind)
+            if kind == "heatmap":  # the heat peaks were added beside the others
+                detections = frame_detections
             matched = matched_detections(detections, tips)
             for detection, right in zip(detections, matched, strict=True):
                 if SOURCE_SCORE[detection.source] == kind:

@@ -22,8 +22,10 @@ from fingertips import (
     detect_fingertips,
     name_fingers,
 )
+from fingertips.calibration_training import calibration_samples
 from fingertips.data import FingertipDataConfig, generate_examples
 from fingertips.detect import detection_points, detector_config_from_dict
+from fingertips.evaluation import AnnotatedDepth
 from fingertips.forest import load_forest, save_forest
 from fingertips.geodesic import no_candidates
 from fingertips.heat_fusion import (
@@ -604,6 +606,31 @@ def test_detection_keeps_candidates_by_their_fused_probability() -> None:
     assert kept[0].source == "forest" and kept[1:] == plain[1:]
     expected = 1 / (1 + np.exp(-(12.0 + log_odds(heat))))
     assert kept[0].tip_probability == pytest.approx(expected, rel=1e-5)
+
+
+def test_the_peak_verifier_map_is_fitted_on_the_fused_probabilities() -> None:
+    """The calibration's "verifier" run keeps the heatmap on for a fused model (its
+    candidates' probabilities need the heat) and scores only their detections."""
+    depth = _stub_and_domes()
+    model = _heatmap_model()
+    assert model.heatmap is not None
+    config = replace(STRIDE_1, min_tip_probability=0.5, heatmap_min_probability=0.2)
+    tip = np.array([(39.5 - 40) * Z_M / 200, (29.5 - 40) * Z_M / 200, Z_M])
+    tips = np.full((1, 5, 3), np.nan)
+    tips[0, 1] = tip
+    frames = AnnotatedDepth(depth[None], CAMERA, tips, np.full((1, 5, 2), np.nan), np.array([0]))
+    plain = calibration_samples(frames, model, min_probability=0.05, config=config)
+    np.testing.assert_allclose(plain["verifier"][0], [0.9], rtol=1e-6)
+    fused_model = replace(model, heatmap=replace(model.heatmap, fusion=np.array([12.0, 0, 1])))
+    fused = calibration_samples(frames, fused_model, min_probability=0.05, config=config)
+    (forest,) = [
+        d
+        for d in detect_fingertips(depth, INTRINSICS, fused_model, config=config)
+        if d.source == "forest"
+    ]
+    np.testing.assert_allclose(fused["verifier"][0], [forest.tip_probability], rtol=1e-6)
+    assert fused["verifier"][1].tolist() == [True]
+    assert 0.9 < float(fused["verifier"][0][0]) < 0.95
 
 
 def test_heatmap_threshold_needs_the_forest_verifier_threshold() -> None:
