@@ -26,10 +26,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fingertips.data import FingertipDataConfig, data_config_from_dict, generate_examples
-from fingertips.heatmap import CROP_HALF_M, PASSES, CropCentre, frame_crop_centre, hand_crop
+from fingertips.heatmap import (
+    CROP_CENTRES,
+    CROP_HALF_M,
+    PASSES,
+    CropCentre,
+    frame_crop_centre,
+    hand_crop,
+)
 from glovedb import __version__
 from glovedb._files import write_atomically
-from glovedb._validate import dataclass_from_table
+from glovedb._validate import check_choice, dataclass_from_table
 
 CROPS_FORMAT = "glove-fingertip-crops"
 """The ``format`` entry of a crop file."""
@@ -81,6 +88,12 @@ class HeatmapTrainingConfig:
         its verifier is fitted on what it gives. Needs the ``onnx`` package.
     quantize_crops : int
         Frames of the first crop seed whose crops calibrate the quantization.
+    crop_centre : {"density", "fingers"}
+        The crop centre's rule of the network's training crops
+        (:func:`fingertips.heatmap.frame_crop_centre`). The detector's own rule is
+        ``[detector] heatmap_centre``, which the heatmap's verifier is fitted with; the
+        shipped network was trained on ``"density"`` crops and is used with
+        ``"fingers"`` (docs/fingertips.md, "The crop centre").
     fuse_candidates : bool
         Fit the candidates' fusion of the peak verifier and the heat
         (:func:`fingertips.heat_fusion.fused_probability`) on the verifier's frames.
@@ -109,6 +122,7 @@ class HeatmapTrainingConfig:
     verifier_learning_rate: float = 0.05
     quantize: bool = False
     quantize_crops: int = 200
+    crop_centre: CropCentre = "density"
     fuse_candidates: bool = True
     seed: int = 0
 
@@ -122,6 +136,7 @@ class HeatmapTrainingConfig:
             raise ValueError("whole_hand_epochs, all_epochs: expected 0 or more")
         if self.whole_hand_epochs + self.all_epochs < 1:
             raise ValueError("whole_hand_epochs + all_epochs: expected at least one epoch")
+        check_choice("crop_centre", self.crop_centre, CROP_CENTRES)
         if self.passes not in PASSES:
             raise ValueError(f"passes: expected one of {PASSES}, got {self.passes}")
         if not 0 <= self.min_value < 1:
@@ -185,7 +200,7 @@ def render_crops(
     """Render ``per_seed`` frames for each seed and crop the hand of each.
 
     ``centre`` is the crop centre's rule (:func:`fingertips.heatmap.frame_crop_centre`),
-    the detector's ``heatmap_centre``. Frames without an object in view are skipped.
+    the config's ``crop_centre``. Frames without an object in view are skipped.
     """
     from tqdm import tqdm
 

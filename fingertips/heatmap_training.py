@@ -449,7 +449,7 @@ def train_heatmap(
             frames,
             config.crop_seeds,
             config.crops_per_seed,
-            centre=detector.heatmap_centre,
+            centre=config.crop_centre,
             progress=progress,
         )
         network_onnx = train_heatmap_network(crops, config, progress=progress)
@@ -463,7 +463,7 @@ def train_heatmap(
             frames,
             first_seed,
             config.quantize_crops,
-            centre=detector.heatmap_centre,
+            centre=config.crop_centre,
             progress=progress,
         )
         network_onnx = quantize_network(network_onnx, calibration.images, passes=config.passes)

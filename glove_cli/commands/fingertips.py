@@ -374,14 +374,14 @@ def _heatmap_network(path: str) -> Any:
 
 def _heatmap_recipe(path: str) -> tuple[Any, Any, Any]:
     """The config's ``[heatmap]`` settings, the data settings of its crops and their
-    centre rule (the ``[detector]``'s ``heatmap_centre``)."""
+    centre rule (``[heatmap] crop_centre``)."""
     from fingertips.training import load_recipe
 
     recipe = load_recipe(path)
     if recipe.heatmap is None:
         raise ValueError(f"{path}: no [heatmap] table")
     data = recipe.heatmap.heatmap_data(recipe.data)
-    return recipe.heatmap, data, recipe.detector.heatmap_centre
+    return recipe.heatmap, data, recipe.heatmap.crop_centre
 
 
 def run_crops(args: argparse.Namespace) -> int:

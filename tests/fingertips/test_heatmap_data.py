@@ -50,6 +50,9 @@ def test_config_reads_data_overrides_and_refuses_bad_values() -> None:
         heatmap_config_from_dict({"passes": 3})
     with pytest.raises(ValueError, match="widht"):
         heatmap_config_from_dict({"widht": 4})
+    with pytest.raises(ValueError, match="crop_centre"):
+        heatmap_config_from_dict({"crop_centre": "palm"})
+    assert heatmap_config_from_dict({"crop_centre": "fingers"}).crop_centre == "fingers"
     with pytest.raises(ValueError, match="curl_fracton"):
         heatmap_config_from_dict({"data": {"curl_fracton": 0.3}})
 
