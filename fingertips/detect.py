@@ -135,8 +135,7 @@ class DetectorConfig:
         heat of their map cell when the heatmap stage is on and the model has a fusion,
         :mod:`fingertips.heat_fusion`) is below this are dropped; 0 keeps every peak
         above ``c_thr`` (and is the only value allowed for a model without a
-        verifier). With a verifier, ``c_thr`` only
-        selects the candidate peaks.
+        verifier). With a verifier, ``c_thr`` only selects the candidate peaks.
     heatmap_min_probability : float
         Peaks of the model's heatmap stage (:mod:`fingertips.heatmap`) whose
         verifier probability reaches this, and that lie farther than
@@ -483,6 +482,11 @@ def verified_candidates(
     model : FingertipForest
         With a peak verifier.
     config : DetectorConfig
+
+    Returns
+    -------
+    VerifiedCandidates
+        The probabilities are the peak verifier's own, never fused with the heat.
     """
     if model.verifier is None:
         raise ValueError("model: has no peak verifier (a [verifier] table)")

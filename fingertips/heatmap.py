@@ -68,13 +68,13 @@ HAND_BAND_M = 0.2
 _CENTRE_RADIUS_M = 0.12
 _FINGER_CENTRE_RADIUS_M = 0.08
 _MIN_POINTS = 20
+_LIFT_RADIUS_M = 0.006
+_LIFT_PERCENTILE = 10
+_LIFT_BEHIND_M = 0.008
 
 CropCentre = Literal["density", "fingers"]
 CROP_CENTRES: tuple[CropCentre, ...] = ("density", "fingers")
 """Rules for the crop centre (module docstring, step 1)."""
-_LIFT_RADIUS_M = 0.006
-_LIFT_PERCENTILE = 10
-_LIFT_BEHIND_M = 0.008
 
 HEAT_PEAK_FEATURES: tuple[str, ...] = (
     "value",

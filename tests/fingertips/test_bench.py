@@ -79,7 +79,9 @@ def test_stage_clock_excludes_nested_calls_and_other_threads() -> None:
     with timed_stages(clock):
         pass
     ms = clock.frame_ms(0.001, 0.035)
-    assert 20 <= ms["inner"] < 30 and 10 <= ms["outer"] < 20 and ms["beside"] >= 30
+    # Sleeps overrun on a loaded machine; an outer stage that counted its nested one
+    # would take at least 30 ms.
+    assert ms["inner"] >= 20 and 10 <= ms["outer"] < 30 and ms["beside"] >= 30
     assert ms["other"] == pytest.approx(35 - ms["inner"] - ms["outer"], abs=1e-9)
     assert ms["read"] == pytest.approx(1.0) and ms["detect"] == pytest.approx(35.0)
 
