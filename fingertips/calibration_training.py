@@ -201,9 +201,12 @@ def calibration_samples(
         found = run_detector(frames, model, config=settings, progress=progress)[0]
         scores, correct = [], []
         for frame_detections, tips in zip(found, frames.tips_m, strict=True):
-            detections = tuple(d for d in frame_detections if SOURCE_SCORE[d.source] == kind)
-            if kind == "heatmap":  # the heat peaks were added beside the others
-                detections = frame_detections
+            # The heat peaks join the others' matching only in the heatmap's run.
+            detections = (
+                frame_detections
+                if kind == "heatmap"
+                else tuple(d for d in frame_detections if SOURCE_SCORE[d.source] == kind)
+            )
             matched = matched_detections(detections, tips)
             for detection, right in zip(detections, matched, strict=True):
                 if SOURCE_SCORE[detection.source] == kind:

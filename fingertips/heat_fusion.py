@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fingertips.heatmap import CROP_HALF_M, GRID, HandHeatmaps
+from fingertips.heatmap import GRID, HandHeatmaps, crop_units
 from glovedb._validate import as_array
 
 
@@ -37,9 +37,7 @@ def candidate_heat(heatmaps: HandHeatmaps, points_m: ArrayLike) -> NDArray[np.fl
     heat = np.zeros(len(points), np.float32)
     if heatmaps.centre is None or heatmaps.maps is None or not len(points):
         return heat
-    centre = heatmaps.centre
-    rays = points[:, :2] / points[:, 2:3] - centre[:2] / centre[2]
-    cells = np.rint((rays * centre[2] / CROP_HALF_M + 1) / 2 * GRID - 0.5)
+    cells = np.rint((crop_units(points, heatmaps.centre) + 1) / 2 * GRID - 0.5)
     inside = ((cells >= 0) & (cells < GRID)).all(axis=1) & (points[:, 2] > 0)
     column, row = cells[inside].astype(np.intp).T
     heat[inside] = heatmaps.maps.mean(axis=0)[row, column]

@@ -270,6 +270,13 @@ def hand_crop(
     return np.clip(relative, -1.0, 1.0).astype(np.float16).astype(np.float32)
 
 
+def crop_units(points_m: NDArray[np.float64], centre: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Positions ``(..., K, 2)`` of 3D points ``(..., K, 3)`` in the [-1, 1] frame of the
+    crops around ``centre`` ``(..., 3)``, through their pinhole."""
+    rays = points_m[..., :2] / points_m[..., 2:3] - centre[..., None, :2] / centre[..., None, 2:3]
+    return rays * centre[..., None, 2:3] / CROP_HALF_M
+
+
 def crop_views(crop: NDArray[np.float32], passes: int) -> NDArray[np.float32]:
     """The network's inputs ``(passes, 1, CROP_PX, CROP_PX)``: turned and mirrored crops.
 

@@ -31,6 +31,7 @@ from fingertips.heatmap import (
     CROP_HALF_M,
     PASSES,
     CropCentre,
+    crop_units,
     frame_crop_centre,
     hand_crop,
 )
@@ -180,13 +181,6 @@ class Crops:
     images: NDArray[np.float16]
     tips: NDArray[np.float32]
     whole_hand: NDArray[np.bool_]
-
-
-def crop_units(points_m: NDArray[np.float64], centre: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Positions ``(..., K, 2)`` of 3D points ``(..., K, 3)`` in the [-1, 1] frame of the
-    crops around ``centre`` ``(..., 3)``, through their pinhole."""
-    rays = points_m[..., :2] / points_m[..., 2:3] - centre[..., None, :2] / centre[..., None, 2:3]
-    return rays * centre[..., None, 2:3] / CROP_HALF_M
 
 
 def render_crops(

@@ -7,10 +7,9 @@ import numpy as np
 import pytest
 
 from fingertips.data import FingertipDataConfig
-from fingertips.heatmap import CROP_PX, GRID, crop_cell_pixels
+from fingertips.heatmap import CROP_PX, GRID, crop_cell_pixels, crop_units
 from fingertips.heatmap_data import (
     Crops,
-    crop_units,
     heatmap_config_from_dict,
     load_crops,
     save_crops,
