@@ -26,6 +26,7 @@ from builder.build import build_database
 from builder.config import load_config
 from builder.lookup_bench import exact_nearest_errors, held_out_queries, run_lookup_benchmark
 from builder.sequence import SequenceSettings, render_sequence, resolve_trajectory
+from glovedb.lookup import DEFAULT_CASCADE
 from glovedb.resources import config_path
 from glovedb.search import CoarseMaps
 from glovedb.trajectory import load_trajectory
@@ -69,14 +70,14 @@ THESIS_410 = {
         "8:15": (24.92, 58.8),
     },
 }
-OUR_CASCADES = ("8:2000,16:300,64:3", "8:500,16:50,32:3")
+OUR_CASCADES = (DEFAULT_CASCADE, "8:500,16:50,32:3")
 SCALING_ENTRIES = (2_268, 15_120, 100_000, 1_000_000)
 # (cascade, query maps of the early stages): the thesis' cascade as the thesis ran it,
 # the tracker's default, and the fastest cascade that keeps recall, with and without
 # the cell-mean maps (glovedb.search).
 SCALING_CASCADES: tuple[tuple[str, CoarseMaps], ...] = (
     ("16:500,64:3", "exact"),
-    ("8:2000,16:300,64:3", "cell_mean"),
+    (DEFAULT_CASCADE, "cell_mean"),
     ("8:1000,16:100,32:3", "cell_mean"),
     ("8:1000,16:100,32:3", "exact"),
 )
