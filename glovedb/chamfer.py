@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from glovedb import _chamfer_kernels
 from glovedb._validate import as_array
 
 NUM_CLASSES = 10
@@ -140,9 +141,9 @@ def cell_mean_maps(maps: ArrayLike, size: int) -> NDArray[np.float32]:
     fine = array.shape[-1]
     if array.shape[-2] != fine or size < 1 or fine % size:
         raise ValueError(f"size: must divide the maps' side {fine}, got {size}")
-    factor = fine // size
-    cells = array.reshape(NUM_CLASSES, size, factor, size, factor).mean(axis=(2, 4))
-    return (cells / np.float32(factor)).astype(np.float32)
+    cells = np.empty((NUM_CLASSES, size, size), np.float32)
+    _chamfer_kernels.cell_means(np.ascontiguousarray(array), cells)
+    return cells
 
 
 def directed_distance(labels_a: ArrayLike, maps_b: ArrayLike) -> NDArray[np.float32]:

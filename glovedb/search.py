@@ -1,8 +1,8 @@
 """Cascaded k-nearest-neighbour lookup of a query's tiny images in a posture database.
 
-The cascade (Schröder 2015, Sec. 4.2.2, Fig. 4.5) is written ``"8:2000,16:300,64:3"``:
+The cascade (Schröder 2015, Sec. 4.2.2, Fig. 4.5) is written ``"8:2000,16:100,64:3"``:
 scan every entry at 8x8 and keep the 2000 nearest, re-rank those at 16x16 and keep
-300, re-rank those at 64x64 and keep 3. :func:`interpolate_pose` then blends the
+100, re-rank those at 64x64 and keep 3. :func:`interpolate_pose` then blends the
 postures and rotations of the survivors, weighted by their matching errors.
 
 Which distance
@@ -60,13 +60,11 @@ Sources
 
 from __future__ import annotations
 
-import functools
 import itertools
 import math
 import os
 import time
 from collections.abc import Callable, Collection, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Literal, TypeAlias
 
@@ -74,6 +72,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from glovedb import _search_kernels
+from glovedb._ordering import value_id_order
+from glovedb._threads import run_parts, thread_pool
 from glovedb._validate import as_array, check_choice
 from glovedb.chamfer import (
     NUM_CLASSES,
@@ -407,15 +407,8 @@ def _scan(
         for start_stop in starts_stops:
             score(start_stop)
     else:
-        list(_thread_pool(workers).map(score, starts_stops))
+        list(thread_pool(workers).map(score, starts_stops))
     return errors
-
-
-@functools.cache
-def _thread_pool(workers: int) -> ThreadPoolExecutor:
-    """One pool per thread count for the life of the process: starting threads for
-    every scan costs a noticeable part of a 1,000,000-entry scan."""
-    return ThreadPoolExecutor(workers, thread_name_prefix="glovedb-scan")
 
 
 def _smallest(
@@ -433,7 +426,7 @@ def _smallest(
     rows = np.flatnonzero(errors <= _candidate_bound(errors, k))
     if len(rows) < k:
         rows = np.arange(len(errors))
-    return rows[np.lexsort((rows if ids is None else ids[rows], errors[rows]))[:k]]
+    return rows[value_id_order(errors[rows], rows if ids is None else ids[rows])[:k]]
 
 
 def _candidate_bound(errors: NDArray[np.float32], k: int) -> np.float32:
@@ -468,7 +461,7 @@ def _smallest_in_ranges(
         count = _search_kernels.entries_at_most(
             errors, entry_ids, starts, lengths, np.float32(np.inf), kept_ids, kept_errors
         )
-    order = np.lexsort((kept_ids[:count], kept_errors[:count]))[:k]
+    order = value_id_order(kept_errors[:count], kept_ids[:count])[:k]
     return kept_ids[order], kept_errors[order]
 
 
@@ -506,7 +499,7 @@ def _smallest_entries(
     lengths = offsets[scanned[chosen] + 1] - starts
     entry_ids = distinct.entry_ids[range_positions(starts, lengths)]
     entry_errors = np.repeat(image_errors[chosen], lengths)
-    order = np.lexsort((entry_ids, entry_errors))[:k]
+    order = value_id_order(entry_errors, entry_ids)[:k]
     return entry_ids[order], entry_errors[order]
 
 
@@ -520,7 +513,7 @@ def _scan_lists(
     packed = lists.images.images
     size = packed.size
     maps = as_array("query_maps", query_maps, (NUM_CLASSES, size, size), np.float32)
-    probed = probed_lists(lists, maps, k)
+    probed = probed_lists(lists, maps, k, workers=workers)
     starts = lists.list_offsets[probed]
     stops = lists.list_offsets[probed + 1]
     table = code_table(maps, packed.group)
@@ -528,20 +521,15 @@ def _scan_lists(
     ends = np.cumsum(lengths)
     errors = np.empty(int(ends[-1]), np.float32)  # of the probed images, in order
 
-    def score(part: tuple[int, int]) -> None:
-        first, last = part
+    def score(first: int, last: int) -> None:
         written = errors[ends[first] - lengths[first] : ends[last - 1]]
         _search_kernels.score_ranges(
             packed.codes, packed.glove_pixels, table, starts[first:last], stops[first:last], written
         )
 
-    # ``workers`` parts of about equal rows; the calling thread scores the first.
+    # ``workers`` parts of about equal rows.
     cuts = np.searchsorted(ends, ends[-1] * np.arange(1, workers) / workers).tolist()
-    parts = [(a, b) for a, b in itertools.pairwise([0, *cuts, len(starts)]) if b > a]
-    others = [_thread_pool(workers).submit(score, part) for part in parts[1:]]
-    score(parts[0])
-    for other in others:
-        other.result()
+    run_parts(score, [0, *cuts, len(starts)], workers)
     if lists.images.num_entries == lists.images.num_images:  # one entry per image
         return _smallest_in_ranges(errors, lists.images.entry_ids, starts, lengths, k)
     return _smallest_entries(lists.images, errors, k, range_positions(starts, lengths))

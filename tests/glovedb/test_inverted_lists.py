@@ -82,6 +82,30 @@ def test_probing_covers_the_share_and_the_stage_k(images, lists):
     np.testing.assert_array_equal(everything, np.arange(lists.num_lists))
 
 
+@pytest.mark.parametrize("share", [0.01, 0.05, 0.3, 0.6])
+def test_probing_takes_the_shortest_prefix_of_the_ranking(images, lists, share):
+    """Straight from the definition: all lists ranked by mean less twice the spread
+    (ties: lower list first), the fewest of the best that hold the share and k; on
+    one thread or two (the lists split between them)."""
+    lists = dataclasses.replace(lists, probe_share=share)
+    for entry, k in ((7, 10), (900, 300), (2000, 10)):
+        maps = chamfer_maps(images[8][entry])
+        mean, spread = list_distances(lists, maps)
+        split = list_distances(lists, maps, workers=2)
+        np.testing.assert_array_equal(split[0], mean)
+        np.testing.assert_array_equal(split[1], spread)
+        ranked = np.argsort(mean - 2.0 * spread, kind="stable")
+        sizes = np.diff(lists.list_offsets)[ranked]
+        taken = next(
+            n
+            for n in range(1, len(ranked) + 1)
+            if sizes[:n].sum() >= max(k, share * len(images[8]))
+        )
+        expected = np.sort(ranked[:taken])
+        np.testing.assert_array_equal(probed_lists(lists, maps, k), expected)
+        np.testing.assert_array_equal(probed_lists(lists, maps, k, workers=2), expected)
+
+
 @pytest.mark.parametrize("repeats", [False, True])
 def test_scanning_every_list_is_the_exhaustive_scan(images, repeats):
     entries = np.arange(len(images[8]))

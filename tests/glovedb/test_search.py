@@ -332,3 +332,22 @@ def test_selection_over_scanned_ranges_equals_selection_over_their_positions(k: 
     np.testing.assert_array_equal(got[0], expected[0])
     np.testing.assert_array_equal(got[1], expected[1])
     assert len(got[0]) == min(k, scanned)
+
+
+def test_the_candidates_order_is_error_then_id_as_lexsort_gives():
+    """One uint64 key per candidate (the float's bits, then the id) sorts exactly as
+    ``np.lexsort`` on the two keys, for negative, zero, tiny and infinite values."""
+    from glovedb._ordering import value_id_order
+
+    rng = np.random.default_rng(5)
+    special = np.array([-np.inf, -2.5, -1e-30, -0.0, 0.0, 1e-45, 1.0, 3.25, np.inf], np.float32)
+    for _ in range(50):
+        count = int(rng.integers(1, 2000))
+        values = np.where(
+            rng.random(count) < 0.5,
+            rng.choice(special, count),
+            rng.normal(size=count).astype(np.float32),
+        ).astype(np.float32)
+        ids = rng.permutation(3 * count)[:count]
+        expected = np.lexsort((ids, values + np.float32(0.0)))
+        np.testing.assert_array_equal(value_id_order(values, ids), expected)
