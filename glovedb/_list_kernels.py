@@ -69,15 +69,12 @@ def list_distances(
     means: NDArray[np.float32],
     variances: NDArray[np.float32],
     maps: NDArray[np.float32],
-    first: int,
-    last: int,
     mean: NDArray[np.float32],
     spread: NDArray[np.float32],
 ) -> None:
     """``mean[l] = sum means[j] * maps[support[j]]`` and ``spread[l] = sqrt(sum
-    variances[j] * maps[support[j]] ** 2)`` over list ``l``'s support ``j``, for the
-    lists ``first:last``."""
-    for index in range(first, last):
+    variances[j] * maps[support[j]] ** 2)`` over list ``l``'s support ``j``."""
+    for index in range(len(support_offsets) - 1):
         total = np.float32(0.0)
         squared = np.float32(0.0)
         for j in range(support_offsets[index], support_offsets[index + 1]):

@@ -46,7 +46,6 @@ from numpy.typing import NDArray
 
 from glovedb import _list_kernels
 from glovedb._ordering import value_id_order
-from glovedb._threads import run_parts
 from glovedb._validate import as_array
 from glovedb.chamfer import NUM_CLASSES
 from glovedb.distinct_images import DistinctTinyImages, range_positions
@@ -201,7 +200,7 @@ def inverted_lists(
 
 
 def list_distances(
-    lists: InvertedLists, maps: NDArray[np.float32], *, workers: int = 1
+    lists: InvertedLists, maps: NDArray[np.float32]
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Each list's mean distance to a query and its spread.
 
@@ -210,8 +209,6 @@ def list_distances(
     lists : InvertedLists
     maps : (10, s, s) float32
         The query's chamfer maps at the lists' size (checked by the caller).
-    workers : int
-        Threads, each taking lists with about the same support.
 
     Returns
     -------
@@ -222,22 +219,15 @@ def list_distances(
     """
     mean = np.empty(lists.num_lists, np.float32)
     spread = np.empty(lists.num_lists, np.float32)
-    flat_maps = np.ascontiguousarray(maps, dtype=np.float32).reshape(-1)
-
-    def part(first: int, last: int) -> None:
-        _list_kernels.list_distances(
-            lists.support_offsets, lists.support, lists.means, lists.variances,
-            flat_maps, first, last, mean, spread,
-        )  # fmt: skip
-
-    offsets = lists.support_offsets
-    cuts = np.searchsorted(offsets, offsets[-1] * np.arange(1, workers) / workers).tolist()
-    run_parts(part, [0, *cuts, lists.num_lists], workers)
+    _list_kernels.list_distances(
+        lists.support_offsets, lists.support, lists.means, lists.variances,
+        np.ascontiguousarray(maps, dtype=np.float32).reshape(-1), mean, spread,
+    )  # fmt: skip
     return mean, spread
 
 
 def probed_lists(
-    lists: InvertedLists, maps: NDArray[np.float32], min_entries: int, *, workers: int = 1
+    lists: InvertedLists, maps: NDArray[np.float32], min_entries: int
 ) -> NDArray[np.int64]:
     """The lists a query scans, most promising first (mean distance less twice its
     spread, module docstring), until they hold ``probe_share`` of the images and at
@@ -250,15 +240,13 @@ def probed_lists(
         The query's chamfer maps at the lists' size (checked by the caller).
     min_entries : int
         The stage's ``k``.
-    workers : int
-        Threads for :func:`list_distances`.
 
     Returns
     -------
     (P,) int64
         List indices, ascending.
     """
-    mean, spread = list_distances(lists, maps, workers=workers)
+    mean, spread = list_distances(lists, maps)
     score = mean - _SPREAD_WEIGHT * spread
     bounds = lists.list_offsets
     entry_offsets = lists.images.offsets[bounds]
