@@ -1,8 +1,8 @@
 """Cascaded k-nearest-neighbour lookup of a query's tiny images in a posture database.
 
-The cascade (Schröder 2015, Sec. 4.2.2, Fig. 4.5) is written ``"8:2000,16:100,64:3"``:
+The cascade (Schröder 2015, Sec. 4.2.2, Fig. 4.5) is written ``"8:2000,16:200,64:3"``:
 scan every entry at 8x8 and keep the 2000 nearest, re-rank those at 16x16 and keep
-100, re-rank those at 64x64 and keep 3. :func:`interpolate_pose` then blends the
+200, re-rank those at 64x64 and keep 3. :func:`interpolate_pose` then blends the
 postures and rotations of the survivors, weighted by their matching errors.
 
 Which distance

@@ -36,6 +36,25 @@ def test_track_help_states_the_fits_default_iterations(capsys):
     assert f"per start (default {FitSettings().iterations})" in help_text
 
 
+def test_bench_lookup_defaults_to_the_trackers_cascade():
+    """The command line spells the library's defaults and choices out (importing them
+    is slow): they must stay the library's."""
+    from glove_cli.main import build_parser
+    from glovedb.lookup import DEFAULT_CASCADE, FIRST_STAGES
+    from glovedb.search import COARSE_MAPS
+
+    parser = build_parser()
+    assert parser.parse_args(["bench", "lookup", "--db", "x.h5"]).cascade == DEFAULT_CASCADE
+    for first_stage in FIRST_STAGES:
+        args = parser.parse_args(["bench", "lookup", "--db", "x.h5", "--first-stage", first_stage])
+        assert args.first_stage == first_stage
+    for maps in COARSE_MAPS:
+        assert (
+            parser.parse_args(["bench", "lookup", "--db", "x", "--coarse-maps", maps]).coarse_maps
+            == maps
+        )
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
