@@ -321,7 +321,7 @@ def read_shard_into(
         lengths, size_bytes = _shard_head(file, path, len(rows), views)
         for k, size in enumerate(sorted(rows)):
             count = int(size_bytes[k])
-            if len(rows[size]) < count or file.readinto(memoryview(rows[size])[:count]) != count:
+            if len(rows[size]) < count or file.readinto(rows[size][:count].data) != count:
                 raise ValueError(f"{path}: not a shard of this build")
     return lengths
 
