@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from glovedb._closing import Closing
-from glovedb._row_codec import HEADER_BYTES, decode_rows
+from glovedb._row_codec import HEADER_BYTES, decode_rows, score_rows
 from glovedb._validate import as_array
 
 FORMAT_NAME = "glove-posture-db"
@@ -115,10 +115,76 @@ def read_rows(
         When the file is shorter than its offsets say, or a row is damaged.
     """
     size = layout.size
+    unique, inverse, data, starts, stops = _row_bytes(layout, read, ids, where)
+    if layout.encoded:
+        images = _decoded(data, starts, stops, size, unique, where)
+    else:
+        images = data.reshape(len(unique), size, size)
+    return images if inverse is None else images[inverse]
+
+
+def score_file_rows(
+    layout: RowLayout,
+    read: Callable[[int, int], bytes],
+    ids: NDArray[np.integer],
+    maps: NDArray[np.float32],
+    where: str,
+) -> NDArray[np.float32]:
+    """The directed distance ``m(D, Q)`` of the given entries' run-length coded rows
+    to a query, in ``ids`` order, without decoding them
+    (:func:`glovedb._row_codec.score_rows`); what :func:`read_rows` and a scan of the
+    images give, to float32 rounding.
+
+    Parameters
+    ----------
+    layout : RowLayout
+        Of an encoded size (format 2).
+    read, ids, where
+        As in :func:`read_rows`.
+    maps : (10, s, s) float32
+        The query's chamfer maps at the layout's size.
+
+    Returns
+    -------
+    (k,) float32
+        Pixels; ``inf`` for rows without glove pixels.
+
+    Raises
+    ------
+    ValueError
+        When the file is shorter than its offsets say, or a row is damaged.
+    """
+    if not layout.encoded:
+        raise ValueError(f"{where}: /tiny/{layout.size} is not run-length coded")
+    unique, inverse, data, starts, stops = _row_bytes(layout, read, ids, where)
+    errors, damaged, reason = score_rows(data, starts, stops, maps)
+    if damaged >= 0:
+        entry = unique[damaged]
+        raise ValueError(f"{where}: damaged database, /tiny/{layout.size} entry {entry}: {reason}")
+    return errors if inverse is None else errors[inverse]
+
+
+def _row_bytes(
+    layout: RowLayout,
+    read: Callable[[int, int], bytes],
+    ids: NDArray[np.integer],
+    where: str,
+) -> tuple[
+    NDArray[np.int64],
+    NDArray[np.int64] | None,
+    NDArray[np.uint8],
+    NDArray[np.int64],
+    NDArray[np.int64],
+]:
+    """The distinct ``ids`` (ascending) and where each id is among them (None when
+    ``ids`` are those), and their rows' bytes read in one call per run of consecutive
+    entries, with each row's start and stop in them (arguments of :func:`read_rows`)."""
     ids = np.asarray(ids, np.int64)
     unique, inverse = np.unique(ids, return_inverse=True)
+    where_in = None if np.array_equal(unique, ids) else inverse
     if not len(unique):
-        return np.zeros((0, size, size), np.uint8)
+        empty = np.zeros(0, np.int64)
+        return unique, where_in, np.zeros(0, np.uint8), empty, empty
     gaps = np.flatnonzero(np.diff(unique) != 1) + 1
     firsts = unique[np.r_[0, gaps]]
     lasts = unique[np.r_[gaps - 1, len(unique) - 1]]
@@ -127,14 +193,10 @@ def read_rows(
     pieces = map(read, starts.tolist(), spans.tolist())
     data = np.frombuffer(bytearray().join(pieces), np.uint8)
     if len(data) != spans.sum():
-        raise ValueError(f"{where}: damaged database, shorter than its /tiny/{size} offsets")
+        raise ValueError(f"{where}: damaged database, shorter than its /tiny/{layout.size} offsets")
     lengths = offsets[unique + 1] - offsets[unique]
-    if layout.encoded:
-        stops = np.cumsum(lengths)
-        images = _decoded(data, stops - lengths, stops, size, unique, where)
-    else:
-        images = data.reshape(len(unique), size, size)
-    return images if np.array_equal(unique, ids) else images[inverse]
+    stops = np.cumsum(lengths)
+    return unique, where_in, data, stops - lengths, stops
 
 
 class GloveDatabase(Closing):

@@ -23,7 +23,8 @@ from numpy.typing import NDArray
 
 from glovedb._closing import Closing
 from glovedb._validate import check_choice
-from glovedb.database import GloveDatabase, RowLayout, read_rows
+from glovedb.chamfer import directed_distance
+from glovedb.database import GloveDatabase, RowLayout, read_rows, score_file_rows
 from glovedb.distinct_images import (
     DistinctTinyImages,
     distinct_image_count,
@@ -35,6 +36,7 @@ from glovedb.search import (
     CoarseMaps,
     InterpolatedPose,
     PackedTinyImages,
+    RowScorer,
     SearchResult,
     TinyImageSource,
     cascade_search,
@@ -245,10 +247,23 @@ class DatabaseIndex(Closing):
 
     def rows(self, size: int, ids: NDArray[np.int64]) -> NDArray[np.uint8]:
         """Images of the given entries, ``(len(ids), s, s) uint8``."""
-        base = self.base_ids(ids)
+        return np.asarray(self._rows_of(size)[self.base_ids(ids)])
+
+    def row_errors(
+        self, size: int, ids: NDArray[np.int64], maps: NDArray[np.float32]
+    ) -> NDArray[np.float32]:
+        """``m(D, Q)`` of the given entries' images at one size for the query's chamfer
+        maps ``(10, s, s)``: scored on the file's run-length coded rows where they are
+        read from it (:func:`glovedb.database.score_file_rows`), else on the images."""
+        source = self._rows_of(size)
+        if isinstance(source, _RowReader) and source.encoded:
+            return source.errors(self.base_ids(ids), maps)
+        return directed_distance(self.rows(size, ids), maps)
+
+    def _rows_of(self, size: int) -> _RowReader | NDArray[np.uint8]:
         if size not in self._rows:
             self._rows[size] = self._row_source(size)
-        return np.asarray(self._rows[size][base])
+        return self._rows[size]
 
     def _row_source(self, size: int) -> _RowReader | NDArray[np.uint8]:
         """Where the rows of one size come from: every image decoded into memory when
@@ -280,6 +295,8 @@ class DatabaseIndex(Closing):
                 sources[stage.size] = self.first_stage_images(stage.size)
             elif stage.size in self._packed:
                 sources[stage.size] = self.packed(stage.size)
+            elif isinstance(rows := self._rows_of(stage.size), _RowReader) and rows.encoded:
+                sources[stage.size] = RowScorer(functools.partial(self.row_errors, stage.size))
             else:
                 sources[stage.size] = functools.partial(self.rows, stage.size)
         return sources
@@ -350,8 +367,16 @@ class _RowReader:
         self._layout = layout
         self._start = layout.file_offset
 
+    @property
+    def encoded(self) -> bool:
+        """Rows in the run-length code, which :meth:`errors` scores without decoding."""
+        return self._layout.encoded
+
     def __getitem__(self, ids: NDArray[np.integer]) -> NDArray[np.uint8]:
         return read_rows(self._layout, self._read, ids, self._path)
+
+    def errors(self, ids: NDArray[np.integer], maps: NDArray[np.float32]) -> NDArray[np.float32]:
+        return score_file_rows(self._layout, self._read, ids, maps, self._path)
 
     def _read(self, start: int, length: int) -> bytes:
         return os.pread(self._fd, length, self._start + start)

@@ -1,13 +1,15 @@
 """The database file: the row code of format 2, reading format 1, refusing damage."""
 
+import functools
 import shutil
 
 import h5py
 import numpy as np
 import pytest
 
-from glovedb._row_codec import decode_rows, encode_rows
-from glovedb.database import GloveDatabase, RowLayout, read_rows
+from glovedb._row_codec import decode_rows, encode_rows, score_rows
+from glovedb.chamfer import chamfer_maps, directed_distance
+from glovedb.database import GloveDatabase, RowLayout, read_rows, score_file_rows
 from glovedb.lookup import DatabaseIndex
 
 
@@ -76,6 +78,45 @@ def test_damaged_rows_are_found_not_decoded():
     assert decode_rows(two_five_six, np.array([0]), length, 8)[1:] == (0, short)
     with pytest.raises(ValueError, match=r"labels must lie in 0\.\.15"):
         encode_rows(np.full((1, 4, 4), 16, np.uint8))
+
+
+def test_rows_are_scored_from_their_runs_as_their_images_are():
+    """m(D, Q) from the runs, without decoding: the per-pixel lookups' value (float64
+    running sums against float32 per-pixel sums: equal to float32 rounding)."""
+    rng = np.random.default_rng(11)
+    for size in (8, 32, 64):
+        images = rng.integers(0, 11, size=(40, size, size), dtype=np.uint8)
+        images[:10] = 0
+        images[:10, size // 4 : size // 2, 2:-2] = rng.integers(1, 11, size=(10, 1, 1))  # runs
+        images[10] = 0  # no glove pixels
+        maps = chamfer_maps(rng.integers(0, 11, size=(size, size), dtype=np.uint8))
+        data, lengths = encode_rows(images)
+        stops = np.cumsum(lengths)
+        errors, damaged, reason = score_rows(data, stops - lengths, stops, maps)
+        assert (damaged, reason) == (-1, "") and errors.dtype == np.float32
+        np.testing.assert_allclose(errors, directed_distance(images, maps), rtol=1e-6)
+        assert errors[10] == np.inf
+    # A file's rows, any order and repeats, read in runs of entries like read_rows.
+    layout = RowLayout(size, np.concatenate([[0], np.cumsum(lengths)]), True, 0)
+    ids = np.array([7, 2, 3, 2, 39, 4])
+
+    def read(start, length, data=data):
+        return data[start : start + length].tobytes()
+
+    np.testing.assert_array_equal(score_file_rows(layout, read, ids, maps, "db.h5"), errors[ids])
+    # Damage is refused as when decoding, and so are labels above the ten classes.
+    flipped = data.copy()
+    flipped[stops[1] - lengths[1] + 5] ^= 0x10
+    assert score_rows(flipped, stops - lengths, stops, maps)[1:] == (
+        1,
+        "its hash does not match its bytes",
+    )
+    eleven, length = encode_rows(np.full((1, 64, 64), 11, np.uint8))
+    assert score_rows(eleven, np.array([0]), length, maps)[1:] == (0, "a label is not 0..10")
+    with pytest.raises(ValueError, match=r"db\.h5: damaged database, /tiny/64 entry 1: its hash"):
+        score_file_rows(
+            layout, functools.partial(read, data=flipped), np.array([3, 1]), maps, "db.h5"
+        )
 
 
 def test_read_rows_gathers_runs_of_entries_and_refuses_short_reads():
@@ -156,7 +197,13 @@ def test_format_1_files_are_read_as_before(small_database, tmp_path, monkeypatch
             new.lookup(query, "8:30,16:10,32:3"),
         )
         np.testing.assert_array_equal(found.search.entry_ids, expected.search.entry_ids)
-        np.testing.assert_array_equal(found.search.errors, expected.search.errors)
+        # Format 2's rows are scored from their runs (float64 sums), format 1's images
+        # pixel by pixel (float32): the same to float32 rounding.
+        np.testing.assert_allclose(found.search.errors, expected.search.errors, rtol=1e-6)
+        maps = chamfer_maps(query[32])
+        np.testing.assert_allclose(
+            new.row_errors(32, ids, maps), directed_distance(index.rows(32, ids), maps), rtol=1e-6
+        )
 
 
 @pytest.mark.gl
@@ -171,10 +218,12 @@ def test_damaged_rows_give_one_line_errors(small_database, tmp_path, monkeypatch
     monkeypatch.setattr("glovedb.lookup._IN_MEMORY_BYTES", 0)
     with GloveDatabase(damaged) as database, DatabaseIndex(damaged) as index:
         np.testing.assert_array_equal(database.image_rows(32, np.array([4, 6])).shape, (2, 32, 32))
+        maps = chamfer_maps(database.image_rows(32, np.array([4]))[0])
         for read in (
             lambda: database.images(32),
             lambda: database.image_rows(32, np.array([6, 5])),
             lambda: index.rows(32, np.array([5])),
+            lambda: index.row_errors(32, np.array([6, 5]), maps),
         ):
             with pytest.raises(ValueError, match=message) as error:
                 read()
