@@ -116,8 +116,8 @@ class RowScorer:
 _MIN_ROWS_PER_CHUNK = 1 << 14
 """Smaller scans run on the calling thread alone. On a 2-core KVM machine, waking a
 pool thread that idled for a millisecond took 120-180 microseconds, and splitting the
-cascade's later stages (2,000 rows of 16x16, 100 of 64x64) or the lists' ranking over
-two threads gained nothing."""
+cascade's later stages (2,000 rows of 16x16, 100-200 of 64x64) or the lists' ranking
+over two threads gained nothing."""
 _SAMPLE_SIZE = 1 << 14
 
 
