@@ -191,7 +191,7 @@ def parse_cascade(spec: str, *, sizes: Collection[int] | None = None) -> tuple[C
     Parameters
     ----------
     spec : str
-        Comma-separated ``size:k`` pairs, e.g. ``"8:2000,16:300,64:3"``.
+        Comma-separated ``size:k`` pairs, e.g. ``"8:2000,16:200,64:3"``.
     sizes : collection of int, optional
         Tiny image sizes the database holds; every stage size must be one of them.
 
@@ -281,7 +281,7 @@ def cascade_search(
         packed on every call, which is slow); distinct images and lists serve the
         first stage only, loaders and scorers the later ones.
     cascade : str or sequence of CascadeStage
-        E.g. ``"8:2000,16:300,64:3"``; checked by :func:`check_cascade`.
+        E.g. ``"8:2000,16:200,64:3"``; checked by :func:`check_cascade`.
     workers : int, optional
         Threads for the scans; default ``os.cpu_count()``.
     coarse_maps : {"cell_mean", "exact"}

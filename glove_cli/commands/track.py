@@ -112,7 +112,11 @@ def source_options(args: argparse.Namespace) -> dict[str, Any]:
 
 def add_tracker_options(parser: argparse.ArgumentParser) -> None:
     """Options shared by ``track`` and ``eval``."""
-    parser.add_argument("--cascade", help="lookup cascade, e.g. 8:2000,16:300,64:3")
+    parser.add_argument(
+        "--cascade",
+        help="lookup cascade, e.g. 16:500,64:3 (default: 8:2000,16:200,64:3 on the sizes "
+        "the database has)",
+    )
     parser.add_argument(
         "--colors",
         help="color table (.npz) from glove calibrate (default: DB.colors.npz if present)",
