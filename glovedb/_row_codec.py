@@ -25,6 +25,7 @@ from numba.cpython.unsafe.numbers import trailing_zeros
 from numpy.typing import NDArray
 
 from glovedb._validate import as_array
+from glovedb.chamfer import NUM_CLASSES
 
 HEADER_BYTES = 4
 LARGEST_LABEL = 15
@@ -36,7 +37,6 @@ _REASONS = (
     "its runs do not fill the image",
     "a label is not 0..10",
 )
-_GLOVE_CLASSES = 10
 
 
 def encode_rows(images: NDArray[np.uint8]) -> tuple[NDArray[np.uint8], NDArray[np.int64]]:
@@ -121,8 +121,8 @@ def score_rows(
         a label above 10); -1 when none is.
     reason : str
     """
-    flat = maps.reshape(_GLOVE_CLASSES, -1).astype(np.float64)
-    cumulative = np.zeros((_GLOVE_CLASSES, flat.shape[1] + 1))
+    flat = maps.reshape(NUM_CLASSES, -1).astype(np.float64)
+    cumulative = np.zeros((NUM_CLASSES, flat.shape[1] + 1))
     np.cumsum(flat, axis=1, out=cumulative[:, 1:])
     errors = np.empty(len(starts), np.float32)
     damaged, reason = _score(data, starts, stops, cumulative, errors)
@@ -239,7 +239,7 @@ def _score(
             label, run, at = _run(data, at, stop)
             if run == 0 or i + run > pixels:
                 return row, 2
-            if label > _GLOVE_CLASSES:
+            if label > NUM_CLASSES:
                 return row, 3
             if label > 0:
                 costs = cumulative[label - 1]
