@@ -13,8 +13,9 @@ stage          what
 ``hand``       the hand depth (:func:`fingertips.detect.hand_depth`)
 ``forest``     probe image, compiled forest descent, leaf predictions and votes
 ``peaks``      mean-shift of the votes (:func:`fingertips.voting.find_peaks`)
-``geodesic``   geodesic candidates (:func:`fingertips.geodesic.geodesic_candidates`), in
-               a worker thread beside the forest and the peaks
+``geodesic``   geodesic candidates (:func:`fingertips.geodesic.geodesic_candidates`):
+               first, on the frame's thread, when the network's crop centre needs
+               them (the shipped model); else in a worker thread beside the forest
 ``describe``   merging the candidates and their verifier features
 ``verify``     the peak verifier (:func:`fingertips.verify.verify_peaks`)
 ``network``    the hand crop and the heatmap network's passes (onnxruntime), in the
@@ -23,7 +24,8 @@ stage          what
 ``other``      the rest of a frame's detection and its record (checks, waiting for the
                geodesic stage and the network, calibration)
 ``detect``     all of a frame's detection and record: every stage but ``read``,
-               ``geodesic`` and ``network`` (which overlap them), and ``other``
+               ``network`` and a ``geodesic`` stage in its worker (which overlap
+               them), and ``other``
 =============  ==========================================================================
 
 The stages are timed by wrapping, for the run only, the functions

@@ -682,7 +682,8 @@ def start_heatmaps(
     The detector starts it before the forest and collects it for
     :func:`heatmap_peaks` (``heatmaps``): the network's passes, the longest part of a
     frame, run while the forest votes. With ``geodesic`` (the ``"fingers"`` rule) the
-    thread first waits for the geodesic stage, which runs beside the forest too.
+    thread first waits for the geodesic stage (the detector runs that first, on its own
+    thread, and passes it finished).
     """
     depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
     camera = intrinsics_array(intrinsics)

@@ -49,7 +49,9 @@ def test_benchmark_times_every_stage_and_restores_the_detector(tmp_path: Path) -
         for timing in stages.values():
             assert timing["frames"] == 3  # the first frame is reported on its own
             assert 0 <= timing["median"] <= timing["p95"] <= timing["p99"] <= timing["max"]
-        beside = ("read", "network", "geodesic", "detect")  # in other threads, or the whole
+        # In other threads, or the whole; the shipped model's geodesic stage runs on the
+        # frame's thread, before the network that crops around its fingers.
+        beside = ("read", "network", "detect")
         own = sum(stages[s]["mean"] for s in stages if s not in beside)
         assert own == pytest.approx(stages["detect"]["mean"], rel=1e-6)
         assert stages["forest"]["median"] > 0 and stages["network"]["median"] > 0
