@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import cKDTree
 
+from fingertips._voting_kernels import sorted_cubes, window_sums
 from glovedb._validate import as_array
 
 
@@ -159,23 +159,6 @@ def _seeds(votes: Votes, min_weight: float, config: VotingConfig) -> NDArray[np.
     return centroid[order].astype(np.float32)
 
 
-def _window_sums(
-    centres: NDArray[np.float32], votes: Votes, index: cKDTree, radius_m: float
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Vote weight and weighted position sum within ``radius_m`` of each centre."""
-    members = index.query_ball_point(centres, radius_m, return_sorted=False)
-    counts = np.array([len(m) for m in members], dtype=np.intp)
-    flat = np.concatenate([np.asarray(m, dtype=np.intp) for m in members])
-    owner = np.repeat(np.arange(centres.shape[0]), counts)
-    weights = votes.weights[flat].astype(np.float64)
-    n = centres.shape[0]
-    mass = np.bincount(owner, weights, n).astype(np.float64, copy=False)
-    moment = np.stack(
-        [np.bincount(owner, weights * votes.positions_m[flat, k], n) for k in range(3)], axis=1
-    )
-    return mass, moment.astype(np.float64, copy=False)
-
-
 def find_peaks(votes: Votes, *, c_thr: float = 3.0, config: VotingConfig = DEFAULT_VOTING) -> Peaks:
     """Mean-shift the votes from voxel seeds, merge nearby modes, keep confident ones.
 
@@ -195,16 +178,20 @@ def find_peaks(votes: Votes, *, c_thr: float = 3.0, config: VotingConfig = DEFAU
     if votes.weights.size == 0:
         return empty
     modes = _seeds(votes, config.seed_fraction * c_thr, config)
-    index = cKDTree(votes.positions_m)
+    # The votes within the bandwidth of a mode, by cubes of that edge (compiled).
+    positions = np.ascontiguousarray(votes.positions_m, dtype=np.float32)
+    weights = np.ascontiguousarray(votes.weights, dtype=np.float32)
+    radius = float(config.bandwidth_m)
+    cubes = sorted_cubes(positions, radius)
     for _ in range(config.iterations):
         if modes.shape[0] == 0:
             return empty
-        mass, moment = _window_sums(modes, votes, index, config.bandwidth_m)
+        mass, moment = window_sums(modes, positions, weights, *cubes, radius)
         alive = mass > 0
         modes = (moment[alive] / mass[alive, None]).astype(np.float32)
     if modes.shape[0] == 0:
         return empty
-    confidence, _ = _window_sums(modes, votes, index, config.bandwidth_m)
+    confidence, _ = window_sums(modes, positions, weights, *cubes, radius)
     order = np.argsort(-confidence, kind="stable")
     kept: list[int] = []
     for index in order:

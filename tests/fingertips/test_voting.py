@@ -12,6 +12,7 @@ from fingertips import (
     fingertip_votes,
     fingertips_output,
 )
+from fingertips._voting_kernels import sorted_cubes, window_sums
 from fingertips.voting import Votes, find_peaks
 
 
@@ -71,6 +72,28 @@ def test_peaks_are_separated_and_sorted() -> None:
     np.testing.assert_allclose(peaks.positions_m[0], centres[1], atol=0.003)
     np.testing.assert_allclose(peaks.positions_m[1], centres[0], atol=0.003)
     np.testing.assert_allclose(peaks.confidences[1], 15.0, atol=1.5)
+
+
+def test_window_sums_are_the_sums_over_every_vote_within_the_radius() -> None:
+    # Votes around the origin (negative cube indices), some exactly on cube faces and
+    # some exactly at the radius from a centre: the cubes must lose none of them.
+    rng = np.random.default_rng(3)
+    radius = 0.01
+    positions = rng.uniform(-0.03, 0.03, size=(400, 3)).astype(np.float32)
+    positions[:20] = np.round(positions[:20] / radius) * radius  # on cube faces
+    centres = np.concatenate([positions[::25], rng.uniform(-0.03, 0.03, (8, 3))])
+    centres = centres.astype(np.float32)
+    positions[20] = centres[1] + np.float32([radius, 0.0, 0.0])  # on the sphere (to rounding)
+    weights = rng.uniform(0.1, 1.0, 400).astype(np.float32)
+    mass, moment = window_sums(
+        centres, positions, weights, *sorted_cubes(positions, radius), radius
+    )
+    p64, c64 = positions.astype(np.float64), centres.astype(np.float64)
+    inside = ((p64[None] - c64[:, None]) ** 2).sum(axis=2) <= radius**2
+    w64 = weights.astype(np.float64)
+    np.testing.assert_allclose(mass, inside @ w64, rtol=1e-12)
+    np.testing.assert_allclose(moment, inside @ (w64[:, None] * p64), rtol=1e-12, atol=1e-15)
+    assert inside.sum() > 2 * len(centres)  # the windows hold votes
 
 
 def test_no_votes_give_no_detections() -> None:
