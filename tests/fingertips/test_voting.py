@@ -75,8 +75,8 @@ def test_peaks_are_separated_and_sorted() -> None:
 
 
 def test_window_sums_are_the_sums_over_every_vote_within_the_radius() -> None:
-    # Votes around the origin (negative cube indices), some exactly on cube faces and
-    # some exactly at the radius from a centre: the cubes must lose none of them.
+    # Votes around the origin (negative cube indices), some on cube faces and one at
+    # the radius from a centre: the cubes must lose none of them.
     rng = np.random.default_rng(3)
     radius = 0.01
     positions = rng.uniform(-0.03, 0.03, size=(400, 3)).astype(np.float32)
