@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 from scipy.ndimage import distance_transform_edt
+from scipy.sparse import csr_matrix
 
 from fingertips.detect import (
     detect_fingertips,
@@ -29,11 +30,13 @@ from fingertips.features import (
 )
 from fingertips.forest import DEFAULT_MODEL_PATH, load_forest
 from fingertips.geodesic import (
+    NEIGHBOUR_OFFSETS,
     cell_grid,
     geodesic_candidates,
     median_3x3,
     palm_centre,
     surface_graph,
+    symmetric_edges,
 )
 from fingertips.heatmap import hand_heatmaps, heatmap_peaks, start_heatmaps
 
@@ -146,6 +149,49 @@ def test_median_3x3_matches_numpy_bit_for_bit(max_step: float) -> None:
         depth = np.round(depth, 2)  # ties within the neighbourhoods
         smooth = median_3x3(depth, max_step=max_step)
         np.testing.assert_array_equal(smooth, _reference_median_3x3(depth, max_step))
+
+
+def _reference_graph_pairs(
+    node_of_cell: NDArray[np.intp], z: NDArray[np.float64], slope_per_m: float
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """The kept and cut neighbour pairs as :func:`surface_graph` found them in NumPy."""
+    kept, cut = [], []
+    h, w = node_of_cell.shape
+    for dr, dc in NEIGHBOUR_OFFSETS:
+        c0, c1 = max(0, -dc), w - max(0, dc)
+        a = node_of_cell[: h - dr, c0:c1]
+        b = node_of_cell[dr:, c0 + dc : c1 + dc]
+        both = (a >= 0) & (b >= 0)
+        pairs = np.stack([a[both], b[both]], axis=1)
+        za, zb = z[pairs[:, 0]], z[pairs[:, 1]]
+        smooth = np.abs(za - zb) <= slope_per_m * math.hypot(dr, dc) * (za + zb) / 2
+        kept.append(pairs[smooth])
+        cut.append(pairs[~smooth])
+    return np.concatenate(kept), np.concatenate(cut)
+
+
+def test_surface_graph_matches_numpy_and_scipy_bit_for_bit() -> None:
+    for seed in range(3):
+        depth = np.maximum(np.nan_to_num(_awkward_depth(seed), nan=0.0, posinf=0.0), 0.0)
+        # Half of it a smooth surface with holes: edges to keep beside edges to cut.
+        ramp = 0.6 + 0.0004 * np.arange(40, dtype=np.float32)
+        depth[:, :40] = np.where(depth[:, :40] > 0, ramp, 0.0)
+        grid = cell_grid(depth, 1)
+        graph = surface_graph(grid, CAMERA, max_slope=3.0)
+        z = grid.depth_m[grid.depth_m > 0].astype(np.float64)
+        lateral_per_m = grid.stride / math.sqrt(CAMERA[0] * CAMERA[1])
+        kept, cut = _reference_graph_pairs(graph.node_of_cell, z, 3.0 * lateral_per_m)
+        np.testing.assert_array_equal(graph.cut_pairs, cut)
+        assert len(kept) > 100 and len(cut) > 100  # both kinds are exercised
+        heads, tails = np.r_[kept[:, 0], kept[:, 1]], np.r_[kept[:, 1], kept[:, 0]]
+        lengths = np.random.default_rng(seed).uniform(0.001, 0.01, len(kept))
+        expected = csr_matrix((np.r_[lengths, lengths], (heads, tails)), shape=(len(z),) * 2)
+        built = symmetric_edges(kept, lengths, len(z))
+        for name in ("indptr", "indices", "data"):
+            np.testing.assert_array_equal(getattr(built, name), getattr(expected, name))
+        # The graph's own edges join exactly the kept pairs.
+        np.testing.assert_array_equal(graph.edges.indptr, expected.indptr)
+        np.testing.assert_array_equal(graph.edges.indices, expected.indices)
 
 
 def test_palm_centre_is_the_exact_largest_inscribed_disc() -> None:
