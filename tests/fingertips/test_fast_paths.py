@@ -152,7 +152,7 @@ def test_median_3x3_matches_numpy_bit_for_bit(max_step: float) -> None:
 
 
 def _reference_graph_pairs(
-    node_of_cell: NDArray[np.intp], z: NDArray[np.float64], slope_per_m: float
+    node_of_cell: NDArray[np.intp], z: NDArray[np.float64], max_slope: float, lateral_per_m: float
 ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """The kept and cut neighbour pairs as :func:`surface_graph` found them in NumPy."""
     kept, cut = [], []
@@ -164,7 +164,7 @@ def _reference_graph_pairs(
         both = (a >= 0) & (b >= 0)
         pairs = np.stack([a[both], b[both]], axis=1)
         za, zb = z[pairs[:, 0]], z[pairs[:, 1]]
-        smooth = np.abs(za - zb) <= slope_per_m * math.hypot(dr, dc) * (za + zb) / 2
+        smooth = np.abs(za - zb) <= max_slope * math.hypot(dr, dc) * lateral_per_m * (za + zb) / 2
         kept.append(pairs[smooth])
         cut.append(pairs[~smooth])
     return np.concatenate(kept), np.concatenate(cut)
@@ -180,7 +180,7 @@ def test_surface_graph_matches_numpy_and_scipy_bit_for_bit() -> None:
         graph = surface_graph(grid, CAMERA, max_slope=3.0)
         z = grid.depth_m[grid.depth_m > 0].astype(np.float64)
         lateral_per_m = grid.stride / math.sqrt(CAMERA[0] * CAMERA[1])
-        kept, cut = _reference_graph_pairs(graph.node_of_cell, z, 3.0 * lateral_per_m)
+        kept, cut = _reference_graph_pairs(graph.node_of_cell, z, 3.0, lateral_per_m)
         np.testing.assert_array_equal(graph.cut_pairs, cut)
         assert len(kept) > 100 and len(cut) > 100  # both kinds are exercised
         heads, tails = np.r_[kept[:, 0], kept[:, 1]], np.r_[kept[:, 1], kept[:, 0]]
