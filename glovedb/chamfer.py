@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -101,18 +100,9 @@ def chamfer_maps(labels: ArrayLike) -> NDArray[np.float32]:
     """
     images = check_labels("labels", labels)
     size = images.shape[-1]
-    flat = images.reshape(-1, size, size)
-    maps = np.full(
-        (flat.shape[0], NUM_CLASSES, size, size), absent_class_distance_px(size), np.float32
-    )
-    for index, image in enumerate(flat):
-        for label in np.unique(image[image > 0]):
-            # OpenCV's precise mask is the exact transform (Felzenszwalb-Huttenlocher),
-            # the same values as scipy.ndimage.distance_transform_edt, faster.
-            other = (image != label).astype(np.uint8)
-            maps[index, label - 1] = cv2.distanceTransform(
-                other, cv2.DIST_L2, cv2.DIST_MASK_PRECISE
-            )
+    flat = np.ascontiguousarray(images.reshape(-1, size, size))
+    maps = np.empty((flat.shape[0], NUM_CLASSES, size, size), np.float32)
+    _chamfer_kernels.distance_maps(flat, absent_class_distance_px(size), maps)
     return maps.reshape((*images.shape[:-2], NUM_CLASSES, size, size))
 
 

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.ndimage import distance_transform_edt
 
 from glovedb.chamfer import (
     NUM_CLASSES,
@@ -59,6 +60,24 @@ def test_chamfer_maps_of_a_stack_equal_maps_of_each_image() -> None:
     maps = chamfer_maps(stack)
     assert maps.shape == (2, 3, NUM_CLASSES, 8, 8)
     np.testing.assert_array_equal(maps[1, 2], chamfer_maps(stack[1, 2]))
+
+
+@pytest.mark.parametrize("size", [8, 16, 64])
+@pytest.mark.parametrize("glove_fraction", [0.02, 0.3, 0.95])
+def test_chamfer_maps_equal_scipy_exact_transform(size: int, glove_fraction: float) -> None:
+    """The compiled transform against SciPy's, bit for bit, on sparse to full images
+    (a class in one column, one absent)."""
+    rng = np.random.default_rng(size + int(100 * glove_fraction))
+    labels = random_labels(rng, size, glove_fraction)
+    labels[(labels == 7) | (labels == 9)] = 0  # class 7 absent,
+    labels[::3, 3] = 9  # class 9 in one column only
+    maps = chamfer_maps(labels)
+    for label in range(1, NUM_CLASSES + 1):
+        if np.any(labels == label):
+            expected = distance_transform_edt(labels != label).astype(np.float32)
+        else:
+            expected = np.full((size, size), absent_class_distance_px(size), np.float32)
+        np.testing.assert_array_equal(maps[label - 1], expected)
 
 
 def test_single_pixel_map_is_euclidean_distance() -> None:
