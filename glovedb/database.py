@@ -20,7 +20,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
 import h5py
 import numpy as np
@@ -90,9 +90,15 @@ class RowLayout:
     file_offset: int | None
 
 
+RowData: TypeAlias = Callable[[int, int], bytes] | NDArray[np.uint8]
+"""The row data of one size: ``read(start, length)``, which returns ``length`` bytes
+from byte ``start`` of it (called once per run of consecutive entries, in ascending
+order), or all of it in memory (a mapped file region), read where it lies."""
+
+
 def read_rows(
     layout: RowLayout,
-    read: Callable[[int, int], bytes],
+    read: RowData,
     ids: NDArray[np.integer],
     where: str,
 ) -> NDArray[np.uint8]:
@@ -101,9 +107,8 @@ def read_rows(
     Parameters
     ----------
     layout : RowLayout
-    read : callable
-        ``read(start, length)``: ``length`` bytes from byte ``start`` of the row data.
-        Called once per run of consecutive entries, in ascending order.
+    read : RowData
+        The row data, or how to read it.
     ids : (k,) int
         Entries in ``0..N-1``, any order, repeats allowed (checked by the caller).
     where : str
@@ -119,13 +124,13 @@ def read_rows(
     if layout.encoded:
         images = _decoded(data, starts, stops, size, unique, where)
     else:
-        images = data.reshape(len(unique), size, size)
+        images = data[starts[:, None] + np.arange(size * size)].reshape(len(unique), size, size)
     return images if inverse is None else images[inverse]
 
 
 def score_file_rows(
     layout: RowLayout,
-    read: Callable[[int, int], bytes],
+    read: RowData,
     ids: NDArray[np.integer],
     maps: NDArray[np.float32],
     where: str,
@@ -166,7 +171,7 @@ def score_file_rows(
 
 def _row_bytes(
     layout: RowLayout,
-    read: Callable[[int, int], bytes],
+    read: RowData,
     ids: NDArray[np.integer],
     where: str,
 ) -> tuple[
@@ -177,14 +182,22 @@ def _row_bytes(
     NDArray[np.int64],
 ]:
     """The distinct ``ids`` (ascending) and where each id is among them (None when
-    ``ids`` are those), and their rows' bytes read in one call per run of consecutive
-    entries, with each row's start and stop in them (arguments of :func:`read_rows`)."""
+    ``ids`` are those), and bytes that hold their rows, with each row's start and stop
+    in them (arguments of :func:`read_rows`): the data in memory itself, or the rows
+    read in one call per run of consecutive entries."""
     ids = np.asarray(ids, np.int64)
     unique, inverse = np.unique(ids, return_inverse=True)
     where_in = None if np.array_equal(unique, ids) else inverse
     if not len(unique):
         empty = np.zeros(0, np.int64)
         return unique, where_in, np.zeros(0, np.uint8), empty, empty
+    if isinstance(read, np.ndarray):
+        starts, stops = layout.offsets[unique], layout.offsets[unique + 1]
+        if stops[-1] > len(read):
+            raise ValueError(
+                f"{where}: damaged database, shorter than its /tiny/{layout.size} offsets"
+            )
+        return unique, where_in, read, starts, stops
     gaps = np.flatnonzero(np.diff(unique) != 1) + 1
     firsts = unique[np.r_[0, gaps]]
     lasts = unique[np.r_[gaps - 1, len(unique) - 1]]

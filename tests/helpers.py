@@ -47,3 +47,26 @@ def model_observation(samples, pose, *, max_points):
     region = HandRegion(uv, labels, points[:, 2].astype(np.float32))
     cloud = LabeledPointCloud(points.astype(np.float32), labels)
     return observe(region, cloud, depth, KINECT_V1, max_points=max_points)
+
+
+def write_format_1(source, target):
+    """``target``: the database ``source`` in the layout of format 1, as the builder
+    wrote it up to format 1 (sizes up to 16 chunked gzip, larger ones contiguous)."""
+    import shutil
+
+    import h5py
+
+    from glovedb.database import GloveDatabase
+
+    with GloveDatabase(source) as database:
+        images = {size: database.images(size) for size in database.resolutions}
+    shutil.copyfile(source, target)
+    with h5py.File(target, "r+") as file:
+        file.attrs["format_version"] = 1
+        for size, stack in images.items():
+            del file[f"tiny/{size}"]
+            options = {}
+            if size <= 16:
+                rows = max(1, min(len(stack), (1 << 20) // (size * size)))
+                options = {"chunks": (rows, size, size), "compression": "gzip"}
+            file.create_dataset(f"tiny/{size}", data=stack, **options)

@@ -6,6 +6,7 @@ import shutil
 import h5py
 import numpy as np
 import pytest
+from helpers import write_format_1
 
 from glovedb._row_codec import decode_rows, encode_rows, score_rows
 from glovedb.chamfer import chamfer_maps, directed_distance
@@ -145,23 +146,6 @@ def test_read_rows_gathers_runs_of_entries_and_refuses_short_reads():
 # Files ---------------------------------------------------------------------------
 
 
-def write_format_1(source, target):
-    """``target``: the database ``source`` in the layout of format 1, as the builder
-    wrote it up to format 1 (sizes up to 16 chunked gzip, larger ones contiguous)."""
-    with GloveDatabase(source) as database:
-        images = {size: database.images(size) for size in database.resolutions}
-    shutil.copyfile(source, target)
-    with h5py.File(target, "r+") as file:
-        file.attrs["format_version"] = 1
-        for size, stack in images.items():
-            del file[f"tiny/{size}"]
-            options = {}
-            if size <= 16:
-                rows = max(1, min(len(stack), (1 << 20) // (size * size)))
-                options = {"chunks": (rows, size, size), "compression": "gzip"}
-            file.create_dataset(f"tiny/{size}", data=stack, **options)
-
-
 @pytest.mark.gl  # builds a database
 def test_format_2_stores_rows_and_reads_them_like_whole_images(small_database):
     with GloveDatabase(small_database) as database:
@@ -179,7 +163,7 @@ def test_format_2_stores_rows_and_reads_them_like_whole_images(small_database):
 
 
 @pytest.mark.gl
-def test_format_1_files_are_read_as_before(small_database, tmp_path, monkeypatch):
+def test_format_1_files_are_read_as_before(small_database, tmp_path):
     old = tmp_path / "format1.h5"
     write_format_1(small_database, old)
     ids = np.array([40, 3, 40, 71])
@@ -189,7 +173,6 @@ def test_format_1_files_are_read_as_before(small_database, tmp_path, monkeypatch
             np.testing.assert_array_equal(database.images(size), new.images(size))
             np.testing.assert_array_equal(database.image_rows(size, ids), new.images(size)[ids])
         query = {size: new.images(size)[17] for size in (8, 16, 32)}
-    monkeypatch.setattr("glovedb.lookup._IN_MEMORY_BYTES", 0)  # rows read from the file
     with DatabaseIndex(small_database) as new, DatabaseIndex(old) as index:
         np.testing.assert_array_equal(index.rows(32, ids), new.rows(32, ids))
         found, expected = (
@@ -207,7 +190,7 @@ def test_format_1_files_are_read_as_before(small_database, tmp_path, monkeypatch
 
 
 @pytest.mark.gl
-def test_damaged_rows_give_one_line_errors(small_database, tmp_path, monkeypatch):
+def test_damaged_rows_give_one_line_errors(small_database, tmp_path):
     damaged = tmp_path / "damaged.h5"
     shutil.copyfile(small_database, damaged)
     with h5py.File(damaged, "r+") as file:
@@ -215,7 +198,6 @@ def test_damaged_rows_give_one_line_errors(small_database, tmp_path, monkeypatch
         rows = file["tiny/32/rows"]
         rows[offsets[5] + 6] ^= 0x10  # a run of entry 5 gets another label
     message = r"damaged\.h5: damaged database, /tiny/32 entry 5: its hash does not match"
-    monkeypatch.setattr("glovedb.lookup._IN_MEMORY_BYTES", 0)
     with GloveDatabase(damaged) as database, DatabaseIndex(damaged) as index:
         np.testing.assert_array_equal(database.image_rows(32, np.array([4, 6])).shape, (2, 32, 32))
         maps = chamfer_maps(database.image_rows(32, np.array([4]))[0])

@@ -5,6 +5,7 @@ import os
 
 import numpy as np
 import pytest
+from helpers import write_format_1
 
 from glovedb.database import GloveDatabase
 from glovedb.distinct_images import DistinctTinyImages
@@ -98,25 +99,33 @@ def test_a_rebuilt_database_replaces_its_cache_entry(small_database, tmp_path, m
 def test_decoded_rows_of_a_large_database_are_kept_in_the_cache(
     small_database, tmp_path, monkeypatch
 ):
+    """Rows that cannot be mapped (format 1's compressed sizes, 8 and 16) are decoded
+    whole and kept; those stored in one piece (32) are mapped from the file."""
     import glovedb.lookup
     from glovedb.stage_cache import stage_path
 
-    monkeypatch.setenv("GLOVE_CACHE", str(tmp_path))
+    monkeypatch.setenv("GLOVE_CACHE", str(tmp_path / "cache"))
     monkeypatch.setattr(glovedb.lookup, "CACHE_AT_LEAST", 1)  # the small file counts as large
+    old = tmp_path / "format1.h5"
+    write_format_1(small_database, old)
     ids = np.array([5, 77, 3, 5])
-    with DatabaseIndex(small_database) as index:
+    with DatabaseIndex(old) as index:
         entries = index.entries
         first = {size: index.rows(size, ids) for size in index.resolutions}
-    for size in index.resolutions:  # every size of a small file is decoded whole
-        assert stage_path(small_database, size=size, entries=entries, choice="rows").is_file()
-
-    damaged = stage_path(small_database, size=16, entries=entries, choice="rows")
-    damaged.write_bytes(b"\x93NUMPY not rows")  # decoded again, and kept again
     with DatabaseIndex(small_database) as index:
+        for size, rows in first.items():
+            np.testing.assert_array_equal(rows, index.rows(size, ids))
+    for size in (8, 16, 32):
+        kept = stage_path(old, size=size, entries=entries, choice="rows").is_file()
+        assert kept == (size != 32)
+
+    damaged = stage_path(old, size=16, entries=entries, choice="rows")
+    damaged.write_bytes(b"\x93NUMPY not rows")  # decoded again, and kept again
+    with DatabaseIndex(old) as index:
         np.testing.assert_array_equal(index.rows(16, ids), first[16])
     kept = damaged.read_bytes()
     damaged.write_bytes(kept[:-100])  # cut short: decoded again too
-    with DatabaseIndex(small_database) as index:
+    with DatabaseIndex(old) as index:
         np.testing.assert_array_equal(index.rows(16, ids), first[16])
     assert damaged.read_bytes() == kept
 
@@ -124,7 +133,7 @@ def test_decoded_rows_of_a_large_database_are_kept_in_the_cache(
         raise AssertionError("decoded again instead of read back")
 
     monkeypatch.setattr(GloveDatabase, "images", refuse)
-    with DatabaseIndex(small_database) as index:
+    with DatabaseIndex(old, resident_sizes=()) as index:
         for size, rows in first.items():
             np.testing.assert_array_equal(index.rows(size, ids), rows)
 
