@@ -186,8 +186,11 @@ def _row_bytes(
     in them (arguments of :func:`read_rows`): the data in memory itself, or the rows
     read in one call per run of consecutive entries."""
     ids = np.asarray(ids, np.int64)
-    unique, inverse = np.unique(ids, return_inverse=True)
-    where_in = None if np.array_equal(unique, ids) else inverse
+    if np.all(ids[1:] > ids[:-1]):  # a cascade's candidates: no sort needed
+        unique, where_in = ids, None
+    else:
+        unique, inverse = np.unique(ids, return_inverse=True)
+        where_in = inverse
     if not len(unique):
         empty = np.zeros(0, np.int64)
         return unique, where_in, np.zeros(0, np.uint8), empty, empty
