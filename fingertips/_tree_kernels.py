@@ -23,21 +23,21 @@ def descend_depth_forest(
     offsets_m: NDArray[np.float32],
     focal_px: tuple[float, float],
     tree_roots: NDArray[np.int32],
-    node_feature: NDArray[np.int32],
-    node_threshold: NDArray[np.float32],
-    node_left: NDArray[np.int32],
-    node_right: NDArray[np.int32],
+    nodes: NDArray[np.int32],
 ) -> NDArray[np.int32]:
     """Leaves ``(N, T)`` reached by every pixel in every tree.
 
     ``padded`` is a :func:`~fingertips.features.probe_image`, ``reference_m``
-    its value at each pixel, ``offsets_m`` ``(F, 2, 2)`` the metric probe offsets.
+    its value at each pixel, ``offsets_m`` ``(F, 2, 2)`` the metric probe offsets,
+    ``nodes`` the forest's ``packed_nodes`` (feature, threshold bits, left, right).
 
     A walk is a chain of dependent loads (node, probes, next node). The walks of 8
     pixels in every tree advance together, a level at a time, so that the processor
     overlaps their loads: 24 % less time than one walk after the other on
-    the validation frames' 1,400 pixels and 7 trees (2.6 -> 2.0 ms a frame).
+    the validation frames' 1,400 pixels and 7 trees (2.6 -> 2.0 ms a frame). A node's
+    four fields in one row read one cache line instead of four: 2.0 -> 1.6 ms.
     """
+    thresholds = nodes.view(np.float32)
     height, width = padded.shape
     fx = np.float32(focal_px[0])
     fy = np.float32(focal_px[1])
@@ -62,7 +62,7 @@ def descend_depth_forest(
                 scale_v = scales[n - first, 1]
                 for t in range(n_trees):
                     node = leaves[n, t]
-                    f = node_feature[node]
+                    f = nodes[node, 0]
                     if f < 0:
                         continue
                     walking = True
@@ -74,9 +74,8 @@ def descend_depth_forest(
                         row = min(max(v + dv, -1), height - 2) + 1
                         probe = padded[row, column]
                         value = value + probe if j == 0 else value - probe
-                    leaves[n, t] = (
-                        node_right[node] if value > node_threshold[node] else node_left[node]
-                    )
+                    right = value > thresholds[node, 1]
+                    leaves[n, t] = nodes[node, 3] if right else nodes[node, 2]
     return leaves
 
 

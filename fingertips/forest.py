@@ -59,6 +59,7 @@ model with a heatmap stage). A model without them gives uncalibrated confidences
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import zipfile
@@ -157,6 +158,18 @@ class FingertipForest:
         """The training settings recorded with the forest."""
         loaded: dict[str, Any] = json.loads(self.settings_json)
         return loaded
+
+    @functools.cached_property
+    def packed_nodes(self) -> NDArray[np.int32]:
+        """``(nodes, 4) int32``: each node's feature, threshold (its float32 bits), left
+        and right child side by side, so that a step of a descent reads one cache line
+        instead of four (made on first use)."""
+        nodes = np.empty((len(self.node_feature), 4), np.int32)
+        nodes[:, 0] = self.node_feature
+        nodes[:, 1] = self.node_threshold.view(np.int32)
+        nodes[:, 2] = self.node_left
+        nodes[:, 3] = self.node_right
+        return nodes
 
 
 @dataclass(frozen=True)
@@ -476,10 +489,7 @@ def apply_probe_image(
         forest.offsets_m,
         (float(fx), float(fy)),
         forest.tree_roots,
-        forest.node_feature,
-        forest.node_threshold,
-        forest.node_left,
-        forest.node_right,
+        forest.packed_nodes,
     )
 
 
