@@ -2,15 +2,16 @@
 
 Opening a database for searching makes what the cascade's first stage scans
 (:meth:`glovedb.lookup.DatabaseIndex.first_stage_images`: every entry's smallest tiny
-image decoded, the distinct ones counted, packed) and decodes the middle sizes whole
-(:meth:`glovedb.lookup.DatabaseIndex.rows`: indexing memory is faster than reading
-rows from the file). For a million entries that took about 1.0 s for the 8x8 first
-stage packed (6-8 s as inverted lists, :mod:`glovedb.inverted_lists`) and another
-1.0 s for the 16x16 rows, most of a tracker's start; reading the stage back takes
-0.04-0.1 s, mapping the rows (:func:`load_rows`) under 1 ms. Databases of at least
-:data:`CACHE_AT_LEAST` entries keep them in :func:`glovedb.cache.cache_folder`
-``/ "stages"``: 34 bytes per entry for the packed 8x8 first stage (56 MB for a
-million entries as lists), ``s * s`` bytes per entry for decoded rows (256 at 16x16).
+image decoded, the distinct ones counted, packed) and, for format 1 files whose sizes
+are compressed, decodes the later stages' sizes whole (:meth:`glovedb.lookup.
+DatabaseIndex.rows`; format 2's rows are read where they lie in the mapped file). For
+a million entries that took about 1.0 s for the 8x8 first stage packed (6-9 s as
+inverted lists, :mod:`glovedb.inverted_lists`) and another 1.0 s for 16x16 rows, most
+of a tracker's start; reading the stage back takes 0.04-0.1 s, mapping the rows
+(:func:`load_rows`) under 1 ms. Databases of at least :data:`CACHE_AT_LEAST` entries
+keep them in :func:`glovedb.cache.cache_folder` ``/ "stages"``: 34 bytes per entry for
+the packed 8x8 first stage (56 MB for a million entries as lists), ``s * s`` bytes per
+entry for decoded rows (256 at 16x16).
 
 The file name is two hashes: of what was asked (the database's resolved path, the
 size, the tiling, the first-stage choice), and of the version (the file's size,
