@@ -110,3 +110,39 @@ def descend_rows(
                     right = values[n, f] > node_threshold[node]
                     leaves[n, t] = node_right[node] if right else node_left[node]
     return leaves
+
+
+@numba.njit(cache=True, nogil=True)
+def leaf_votes(
+    leaves: NDArray[np.int32],
+    node_probability: NDArray[np.float32],
+    node_offset_m: NDArray[np.float32],
+    probability: NDArray[np.float32],
+    offset_m: NDArray[np.float32],
+) -> None:
+    """Each sample's mean leaf probability over its trees and its offset, the mean of
+    the leaves' offsets weighted by their probabilities (0 where they are all 0).
+
+    ``leaves (N, T) int32``; ``probability (N,)`` and ``offset_m (N, 3)`` float32 are
+    filled. The sums run over the trees in order, in float32.
+    """
+    trees = leaves.shape[1]
+    for n in range(leaves.shape[0]):
+        weight = np.float32(0.0)
+        x = np.float32(0.0)
+        y = np.float32(0.0)
+        z = np.float32(0.0)
+        for t in range(trees):
+            node = leaves[n, t]
+            p = node_probability[node]
+            weight += p
+            x += p * node_offset_m[node, 0]
+            y += p * node_offset_m[node, 1]
+            z += p * node_offset_m[node, 2]
+        probability[n] = weight / np.float32(trees)
+        if weight > 0:
+            offset_m[n, 0] = x / weight
+            offset_m[n, 1] = y / weight
+            offset_m[n, 2] = z / weight
+        else:
+            offset_m[n] = 0.0

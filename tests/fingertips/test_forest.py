@@ -61,6 +61,38 @@ def test_npz_forest_equals_scikit_learn(kind: ForestKind, tmp_path: Path) -> Non
     assert loaded.version == forest.version != ""
 
 
+def test_leaf_predictions_are_probability_weighted_means_of_the_leaves(tmp_path: Path) -> None:
+    """The compiled combination against its definition: the mean leaf probability and
+    the probability-weighted mean offset (zero where every leaf says 0)."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(3)
+    toy = load_forest(_saved_toy_forest(tmp_path))
+    nodes = len(toy.node_feature)
+    probability = rng.uniform(0, 1, nodes).astype(np.float32)
+    probability[:4] = 0.0
+    forest = replace(
+        toy,
+        node_probability=probability,
+        node_offset_m=rng.uniform(-0.05, 0.05, (nodes, 3)).astype(np.float32),
+    )
+    leaves = rng.integers(4, nodes, (40, forest.n_trees)).astype(np.int32)
+    leaves[0] = np.arange(forest.n_trees)  # every leaf says 0
+    prediction = predict_leaves(forest, leaves)
+    p = forest.node_probability[leaves].astype(np.float64)
+    np.testing.assert_allclose(prediction.probability, p.mean(1), rtol=1e-6)
+    weighted = (p[1:, :, None] * forest.node_offset_m[leaves[1:]]).sum(1)
+    expected = weighted / p[1:].sum(1)[:, None]
+    np.testing.assert_allclose(prediction.offset_m[1:], expected, rtol=1e-5, atol=1e-8)
+    np.testing.assert_array_equal(prediction.offset_m[0], 0.0)
+    assert prediction.probability[0] == 0.0
+    with pytest.raises(ValueError, match="node ids"):
+        predict_leaves(forest, np.full((1, forest.n_trees), nodes, np.int32))
+    packed = forest.packed_nodes  # the descent's node table
+    np.testing.assert_array_equal(packed[:, 2], forest.node_left)
+    np.testing.assert_array_equal(packed[:, 1].view(np.float32), forest.node_threshold)
+
+
 def test_hough_forest_exports_regressor_and_gathers_offsets(tmp_path: Path) -> None:
     rng = np.random.default_rng(8)
     train = _samples(rng, 4000, 12)
