@@ -185,12 +185,11 @@ def _row_bytes(
     ``ids`` are those), and bytes that hold their rows, with each row's start and stop
     in them (arguments of :func:`read_rows`): the data in memory itself, or the rows
     read in one call per run of consecutive entries."""
-    ids = np.asarray(ids, np.int64)
-    if np.all(ids[1:] > ids[:-1]):  # a cascade's candidates: no sort needed
-        unique, where_in = ids, None
-    else:
-        unique, inverse = np.unique(ids, return_inverse=True)
-        where_in = inverse
+    asked: NDArray[np.int64] = np.asarray(ids, np.int64)
+    unique: NDArray[np.int64] = asked
+    where_in: NDArray[np.int64] | None = None
+    if not np.all(asked[1:] > asked[:-1]):  # a cascade's candidates need no sort
+        unique, where_in = np.unique(asked, return_inverse=True)
     if not len(unique):
         empty = np.zeros(0, np.int64)
         return unique, where_in, np.zeros(0, np.uint8), empty, empty
