@@ -59,7 +59,6 @@ model with a heatmap stage). A model without them gives uncalibrated confidences
 
 from __future__ import annotations
 
-import functools
 import json
 import os
 import zipfile
@@ -79,7 +78,13 @@ from fingertips.features import (
     read_probes,
 )
 from fingertips.heatmap import HEAT_PEAK_FEATURES, HeatmapNetwork, HeatmapStage
-from fingertips.trees import FeatureLookup, check_tree_table, descend, descend_matrix
+from fingertips.trees import (
+    FeatureLookup,
+    PackedNodes,
+    check_tree_table,
+    descend,
+    descend_matrix,
+)
 from fingertips.verify import VERIFIER_FEATURE_SETS, PeakVerifier
 from glovedb._files import write_atomically
 from glovedb._validate import as_array
@@ -115,7 +120,7 @@ __all__ = [
 
 
 @dataclass(frozen=True)
-class FingertipForest:
+class FingertipForest(PackedNodes):
     """A trained fingertip forest; see the module docstring for the meaning of each array.
 
     ``verifier`` is the optional peak verifier trained with it (None: detection keeps
@@ -158,18 +163,6 @@ class FingertipForest:
         """The training settings recorded with the forest."""
         loaded: dict[str, Any] = json.loads(self.settings_json)
         return loaded
-
-    @functools.cached_property
-    def packed_nodes(self) -> NDArray[np.int32]:
-        """``(nodes, 4) int32``: each node's feature, threshold (its float32 bits), left
-        and right child side by side, so that a step of a descent reads one cache line
-        instead of four (made on first use)."""
-        nodes = np.empty((len(self.node_feature), 4), np.int32)
-        nodes[:, 0] = self.node_feature
-        nodes[:, 1] = self.node_threshold.view(np.int32)
-        nodes[:, 2] = self.node_left
-        nodes[:, 3] = self.node_right
-        return nodes
 
 
 @dataclass(frozen=True)

@@ -49,7 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 from fingertips.features import intrinsics_array, mask_depth_range, nearest_band
 from fingertips.geodesic import GeodesicCandidates, geodesic_candidates
 from fingertips.pose_guess import hand_points_from_depth, masked_points
-from fingertips.trees import check_tree_table, descend_matrix
+from fingertips.trees import PackedNodes, check_tree_table, descend_matrix
 from glovedb._validate import as_array, check_choice
 
 CROP_PX = 64
@@ -561,7 +561,7 @@ class HeatmapNetwork:
 
 
 @dataclass(frozen=True, eq=False)
-class HeatmapStage:
+class HeatmapStage(PackedNodes):
     """The trained heatmap network and its peak verifier, as stored in the model file.
 
     Attributes

@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from fingertips.features import intrinsics_array, project, read_probes
-from fingertips.trees import check_tree_table, descend_matrix
+from fingertips.trees import PackedNodes, check_tree_table, descend_matrix
 from fingertips.voting import Peaks, Votes
 from glovedb._validate import as_array
 
@@ -255,7 +255,7 @@ def _ranks(confidences: NDArray[np.float32]) -> NDArray[np.float64]:
 
 
 @dataclass(frozen=True)
-class PeakVerifier:
+class PeakVerifier(PackedNodes):
     """A classification forest over peak features, as plain arrays.
 
     The node table is that of :mod:`fingertips.trees`; ``node_probability``
