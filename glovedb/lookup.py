@@ -351,10 +351,13 @@ class _MappedRows:
     (59 MB mapped) scored in 0.60 ms against 0.83 ms for the same rows decoded into
     memory (256 MB), and the 64 x 64 stage's 200 (337 MB mapped) in 0.32 ms against
     1.12 ms with a positioned read (a system call) per run of consecutive entries.
-    Every page is entered at once (``MAP_POPULATE``, where the system has it): a row
-    touched first would otherwise cost a page fault, and the resident memory would
-    grow with every row read instead of being known from the start. Where a file
-    cannot be mapped, the row data is read into memory.
+    Every page is entered at once (``MAP_POPULATE``, where the system has it) when the
+    size's row data takes at most :data:`_POPULATE_AT_MOST`: a row touched first would
+    otherwise cost a page fault, and the resident memory would grow with every row
+    read instead of being known from the start. Larger row data (a real database of
+    many millions of entries) is mapped plainly, so that opening it does not read
+    gigabytes; its rows fault in as lookups touch them. Where a file cannot be mapped,
+    the row data is read into memory.
     """
 
     def __init__(self, path: Path, layout: RowLayout) -> None:
@@ -370,7 +373,8 @@ class _MappedRows:
             try:
                 if length == 0:
                     raise ValueError("nothing to map")  # mmap refuses empty mappings
-                self._map = mmap.mmap(file.fileno(), skip + length, offset=start, **_READ_ONLY)
+                options = _READ_ONLY if length <= _POPULATE_AT_MOST else _READ_ONLY_PLAIN
+                self._map = mmap.mmap(file.fileno(), skip + length, offset=start, **options)
                 self._data = np.frombuffer(self._map, np.uint8, length, skip)
             except (OSError, ValueError):
                 file.seek(layout.file_offset)
@@ -403,3 +407,7 @@ _READ_ONLY: dict[str, int] = (
     else {"access": mmap.ACCESS_READ}
 )
 """A read-only mapping, with every page entered at once where the system can (Linux)."""
+_READ_ONLY_PLAIN: dict[str, int] = {"access": mmap.ACCESS_READ}
+_POPULATE_AT_MOST = 2**30
+"""Bytes of one size's row data entered at once on opening (natural1323's 64 x 64 rows,
+1,000,188 entries: 337 MB, about 30 ms from the page cache)."""
