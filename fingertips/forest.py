@@ -490,9 +490,10 @@ def predict_leaves(forest: FingertipForest, leaves: ArrayLike) -> ForestPredicti
     """Combine the leaves ``(N, T)`` reached in each tree into one prediction per sample
     (compiled: :func:`fingertips._tree_kernels.leaf_votes`, a tenth of the time of
     NumPy's gathers and ``einsum`` on a frame's 1,500 pixels, the same values)."""
-    nodes = as_array("leaves", leaves, (None, forest.n_trees), np.int32, kind="iu")
-    if len(nodes) and (nodes.min() < 0 or nodes.max() >= len(forest.node_probability)):
+    given = as_array("leaves", leaves, (None, forest.n_trees), kind="iu")
+    if given.size and (given.min() < 0 or given.max() >= len(forest.node_probability)):
         raise ValueError(f"leaves: node ids must lie in 0..{len(forest.node_probability) - 1}")
+    nodes = given.astype(np.int32, copy=False)
     probability = np.empty(len(nodes), np.float32)
     offset = np.empty((len(nodes), 3), np.float32)
     leaf_votes(

@@ -88,6 +88,8 @@ def test_leaf_predictions_are_probability_weighted_means_of_the_leaves(tmp_path:
     assert prediction.probability[0] == 0.0
     with pytest.raises(ValueError, match="node ids"):
         predict_leaves(forest, np.full((1, forest.n_trees), nodes, np.int32))
+    with pytest.raises(ValueError, match="node ids"):  # not wrapped into range by a cast
+        predict_leaves(forest, np.full((1, forest.n_trees), 2**32 + 1, np.int64))
     packed = forest.packed_nodes  # the descent's node table
     np.testing.assert_array_equal(packed[:, 2], forest.node_left)
     np.testing.assert_array_equal(packed[:, 1].view(np.float32), forest.node_threshold)
