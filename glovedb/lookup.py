@@ -47,6 +47,7 @@ from glovedb.search import (
 from glovedb.stage_cache import (
     CACHE_AT_LEAST,
     FirstStageImages,
+    forget,
     load_first_stage,
     load_rows,
     save_first_stage,
@@ -271,11 +272,15 @@ class DatabaseIndex(Closing):
         image decoded into memory (format 1's compressed sizes), and then kept between
         runs for a large database (:mod:`glovedb.stage_cache`)."""
         layout = self._database.row_layout(size)
+        path = None
+        if self.base_entries >= CACHE_AT_LEAST:
+            path = stage_path(self.path, size=size, entries=self.base_entries, choice="rows")
         if layout is not None and layout.file_offset is not None:
+            if path is not None:
+                forget(path)  # decoded rows that versions before 2026-11-27 kept
             return _MappedRows(self.path, layout)
-        if self.base_entries < CACHE_AT_LEAST:
+        if path is None:
             return self._database.images(size)
-        path = stage_path(self.path, size=size, entries=self.base_entries, choice="rows")
         rows = load_rows(path, shape=(self.base_entries, size, size))
         if rows is None:
             rows = self._database.images(size)

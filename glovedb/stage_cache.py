@@ -100,6 +100,20 @@ def _drop_older(path: Path) -> None:
             other.unlink(missing_ok=True)
 
 
+def forget(path: str | os.PathLike[str]) -> None:
+    """Delete every version kept of what ``path`` (a :func:`stage_path`) names: for what
+    is no longer made, such as the decoded rows of a format 2 database, which older
+    versions kept (256 MB at 16 x 16 for a million entries)."""
+    target = Path(path)
+    asked = target.name.split("-")[0]
+    try:
+        for kept in target.parent.glob(f"{asked}-*"):
+            if not kept.name.startswith("."):
+                kept.unlink(missing_ok=True)
+    except OSError:
+        pass  # a read-only cache: left as it is
+
+
 def load_first_stage(path: str | os.PathLike[str], *, entries: int) -> FirstStageImages | None:
     """The stage kept at ``path``, or None when there is none, it cannot be read, or
     it does not hold ``entries`` entries."""

@@ -138,6 +138,28 @@ def test_decoded_rows_of_a_large_database_are_kept_in_the_cache(
             np.testing.assert_array_equal(index.rows(size, ids), rows)
 
 
+def test_rows_kept_by_older_versions_are_deleted_once_rows_are_mapped(
+    small_database, tmp_path, monkeypatch
+):
+    """Format 2's rows are mapped, no longer decoded and kept: what older versions kept
+    for them (256 MB at 16 x 16 for a million entries) is deleted, every version."""
+    import glovedb.lookup
+    from glovedb.stage_cache import stage_path
+
+    monkeypatch.setenv("GLOVE_CACHE", str(tmp_path))
+    monkeypatch.setattr(glovedb.lookup, "CACHE_AT_LEAST", 1)  # the small file counts as large
+    with DatabaseIndex(small_database) as index:
+        kept = stage_path(small_database, size=16, entries=index.entries, choice="rows")
+        older = kept.with_name(kept.name.split("-")[0] + "-0123456789abcdef.npy")
+        other = stage_path(small_database, size=32, entries=index.entries, choice="rows")
+        for path in (kept, older, other):
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(b"decoded rows of an older version")
+        index.rows(16, np.array([3, 5]))
+    assert not kept.exists() and not older.exists()
+    assert other.exists()  # 32 x 32 was not read
+
+
 def test_many_images_are_grouped_into_lists_and_kept_between_runs(
     small_database, tmp_path, monkeypatch
 ):
