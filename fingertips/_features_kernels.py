@@ -58,3 +58,34 @@ def filled_with_edge(depth_m: NDArray[np.float32], missing_m: np.float32) -> NDA
         padded[i, 0] = padded[i, 1]
         padded[i, width + 1] = padded[i, width]
     return padded
+
+
+@numba.njit(cache=True, nogil=True)
+def count_measured(depth_m: NDArray[np.float32]) -> int:
+    """``np.count_nonzero(depth_m)`` of an ``(H, W) float32`` depth (NaN counts, as
+    there): NumPy has no fast path for floats (0.68 against 0.05 ms a VGA frame)."""
+    count = 0
+    for i in range(depth_m.shape[0]):
+        row = depth_m[i]
+        for j in range(len(row)):
+            count += row[j] != 0
+    return count
+
+
+@numba.njit(cache=True, nogil=True)
+def measured_pixels(depth_m: NDArray[np.float32], stride: int) -> NDArray[np.int32]:
+    """``(N, 2) int32`` ``(u, v)`` of the pixels above 0 on the grid of step ``stride``,
+    row-major: :func:`numpy.nonzero` of the strided view, stacked."""
+    height, width = depth_m.shape
+    rows = (height + stride - 1) // stride
+    cols = (width + stride - 1) // stride
+    pixels = np.empty((rows * cols, 2), np.int32)
+    count = 0
+    for i in range(0, height, stride):
+        row = depth_m[i]
+        for j in range(0, width, stride):
+            if row[j] > 0:
+                pixels[count, 0] = j
+                pixels[count, 1] = i
+                count += 1
+    return pixels[:count].copy()

@@ -22,7 +22,13 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fingertips._features_kernels import depth_within, filled_with_edge, measured_on_grid
+from fingertips._features_kernels import (
+    count_measured,
+    depth_within,
+    filled_with_edge,
+    measured_on_grid,
+    measured_pixels,
+)
 from glovedb._validate import as_array
 
 BACKGROUND_DEPTH_M = 10.0
@@ -179,7 +185,11 @@ def stride_for_budget(depth_m: ArrayLike, max_pixels: int) -> int:
     int
         At least 1.
     """
-    count = int(np.count_nonzero(as_array("depth_m", depth_m, (None, None), kind="fiu")))
+    depth = as_array("depth_m", depth_m, (None, None), kind="fiu")
+    if depth.dtype == np.float32:  # the detector's depth: compiled (no NumPy fast path)
+        count = count_measured(np.ascontiguousarray(depth))
+    else:
+        count = int(np.count_nonzero(depth))
     return max(1, math.ceil(math.sqrt(count / max_pixels)))
 
 
@@ -202,8 +212,7 @@ def foreground_pixels(depth_m: ArrayLike, *, stride: int = 1) -> NDArray[np.int3
     depth = as_array("depth_m", depth_m, (None, None), np.float32, kind="fiu")
     if stride < 1:
         raise ValueError(f"stride: expected at least 1, got {stride}")
-    rows, cols = np.nonzero(depth[::stride, ::stride] > 0)
-    return np.stack([cols * stride, rows * stride], axis=1).astype(np.int32)
+    return measured_pixels(np.ascontiguousarray(depth), stride)
 
 
 def probe_image(depth_m: NDArray[np.float32]) -> NDArray[np.float32]:

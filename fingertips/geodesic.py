@@ -95,6 +95,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from fingertips._features_kernels import count_measured
 from fingertips._geodesic_kernels import (
     block_medians,
     lower_distances,
@@ -316,7 +317,7 @@ def geodesic_candidates(
         return no_candidates()
     focal = math.sqrt(camera[0] * camera[1])
     stride = stride_for_spacing(crop, focal, spacing_m=config.cell_m)
-    if np.count_nonzero(crop) > config.max_cells * stride**2:
+    if count_measured(crop) > config.max_cells * stride**2:
         crop, origin_uv = _hand_window(crop, origin_uv, camera, config)
         stride = max(stride, stride_for_budget(crop, config.max_cells))
     grid = cell_grid(crop, stride, origin_uv=origin_uv)

@@ -23,10 +23,12 @@ from fingertips.detect import (
 )
 from fingertips.features import (
     BACKGROUND_DEPTH_M,
+    foreground_pixels,
     mask_depth_range,
     nearest_band,
     nearest_depth,
     probe_image,
+    stride_for_budget,
 )
 from fingertips.forest import DEFAULT_MODEL_PATH, load_forest
 from fingertips.geodesic import (
@@ -125,6 +127,24 @@ def test_depth_passes_match_numpy_bit_for_bit(seed: int) -> None:
     np.testing.assert_array_equal(
         nearest_band(view, band_m=0.3), _reference_nearest_band(view, 0.3)
     )
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_pixel_grid_and_budget_match_numpy(seed: int) -> None:
+    """The compiled pixel grid and measured-pixel count against their NumPy
+    definitions, on depth with NaN, infinities and negative values, and on a view."""
+    depth = _awkward_depth(seed)
+    for image in (depth, depth[3:50:2, 4:80:3]):
+        for stride in (1, 2, 3, 5):
+            rows, cols = np.nonzero(image[::stride, ::stride] > 0)
+            expected = np.stack([cols * stride, rows * stride], axis=1).astype(np.int32)
+            found = foreground_pixels(image, stride=stride)
+            assert found.dtype == np.int32
+            np.testing.assert_array_equal(found, expected)
+        for budget in (10, 100, 1000):
+            count = np.count_nonzero(image)  # NaN and negative values count, as there
+            assert stride_for_budget(image, budget) == max(1, math.ceil(math.sqrt(count / budget)))
+    assert foreground_pixels(np.zeros((4, 5), np.float32)).shape == (0, 2)
 
 
 def test_nearest_depth_of_nothing_and_probe_image_of_nothing() -> None:
