@@ -90,13 +90,19 @@ def stage_path(
     return Path(folder or cache_folder() / "stages") / name
 
 
+def _versions(path: Path) -> list[Path]:
+    """What is kept for the same database, size and choice as ``path``, any version
+    (files being written, whose names start with a dot, left out)."""
+    asked = path.name.split("-")[0]
+    return [kept for kept in path.parent.glob(f"{asked}-*") if not kept.name.startswith(".")]
+
+
 def _drop_older(path: Path) -> None:
     """Delete what is kept for the same database, size and choice under another
     version (the file was rebuilt, or the code changed): the folder holds one copy
     per database, not one per build."""
-    asked = path.name.split("-")[0]
-    for other in path.parent.glob(f"{asked}-*"):
-        if other != path and not other.name.startswith("."):
+    for other in _versions(path):
+        if other != path:
             other.unlink(missing_ok=True)
 
 
@@ -104,12 +110,9 @@ def forget(path: str | os.PathLike[str]) -> None:
     """Delete every version kept of what ``path`` (a :func:`stage_path`) names: for what
     is no longer made, such as the decoded rows of a format 2 database, which older
     versions kept (256 MB at 16 x 16 for a million entries)."""
-    target = Path(path)
-    asked = target.name.split("-")[0]
     try:
-        for kept in target.parent.glob(f"{asked}-*"):
-            if not kept.name.startswith("."):
-                kept.unlink(missing_ok=True)
+        for kept in _versions(Path(path)):
+            kept.unlink(missing_ok=True)
     except OSError:
         pass  # a read-only cache: left as it is
 
