@@ -147,6 +147,26 @@ def test_pixel_grid_and_budget_match_numpy(seed: int) -> None:
     assert foreground_pixels(np.zeros((4, 5), np.float32)).shape == (0, 2)
 
 
+@pytest.mark.parametrize("measured", [1, 5, 20, 21, 22, 1500])
+def test_nearest_depth_is_the_partition_of_the_grid(measured: int) -> None:
+    """The one-pass selection against ``np.partition`` of the grid's values, with
+    fewer values than the rank, exactly as many, and ties."""
+    rng = np.random.default_rng(measured)
+    for _ in range(5):
+        depth = np.zeros((90, 70), np.float32)
+        rows, cols = np.unravel_index(rng.choice(45 * 35, measured, replace=False), (45, 35))
+        values = rng.choice(np.float32([0.5, 0.6, 0.61, 0.9, 1.3, 2.0]), measured)
+        values[: measured // 2] = rng.uniform(0.2, 2.0, measured // 2)
+        depth[2 * rows, 2 * cols] = values  # on the 2-pixel grid, ties included
+        depth[1::2, 1::2] = 0.01  # off the grid: never counted
+        depth[0, 1] = np.nan
+        grid = depth[::2, ::2]
+        values = grid[grid > 0]
+        assert values.size == measured
+        k = min(20, values.size - 1)
+        assert nearest_depth(depth) == float(np.partition(values, k)[k])
+
+
 def test_nearest_depth_of_nothing_and_probe_image_of_nothing() -> None:
     assert nearest_depth(np.zeros((4, 5), np.float32)) == 0.0
     with pytest.raises(ValueError, match="depth_m"):
