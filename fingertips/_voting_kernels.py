@@ -82,3 +82,35 @@ def window_sums(
                         moment[j, 1] += w * py
                         moment[j, 2] += w * pz
     return mass, moment
+
+
+@numba.njit(cache=True, nogil=True)
+def kept_apart(
+    points_m: NDArray[np.float32], order: NDArray[np.int64], radius_m: np.float32
+) -> NDArray[np.bool_]:
+    """``(K,)`` bool: the points of ``order``, visited in that order, each kept unless
+    it lies nearer than ``radius_m`` to one kept before it (the others False).
+
+    Distances as NumPy's ``np.linalg.norm(a - b, axis=1) < radius_m`` on float32
+    points: float32 differences and squares summed in axis order, the comparison in
+    float32, so the same points are kept.
+    """
+    keep = np.zeros(points_m.shape[0], np.bool_)
+    kept = np.empty(len(order), np.int64)
+    count = 0
+    for k in order:
+        near = False
+        for j in range(count):
+            other = kept[j]
+            total = np.float32(0.0)
+            for axis in range(3):
+                gap = points_m[other, axis] - points_m[k, axis]
+                total += gap * gap
+            if np.sqrt(total) < radius_m:
+                near = True
+                break
+        if not near:
+            keep[k] = True
+            kept[count] = k
+            count += 1
+    return keep

@@ -51,6 +51,7 @@ from fingertips.voting import (
     DEFAULT_VOTING,
     Votes,
     VotingConfig,
+    apart_in_order,
     cast_votes,
     find_peaks,
 )
@@ -670,13 +671,8 @@ def _separated(
 
     Vote peaks are already that far apart; a geodesic candidate just beyond the merge
     radius of a peak is not."""
-    keep = np.ones(len(candidates), bool)
     order = np.argsort(-score, kind="stable")
-    for rank, k in enumerate(order):
-        earlier = order[:rank][keep[order[:rank]]]
-        gaps = np.linalg.norm(candidates.positions_m[earlier] - candidates.positions_m[k], axis=1)
-        keep[k] = not (gaps < separation_m).any()
-    return keep
+    return apart_in_order(candidates.positions_m, order, separation_m)
 
 
 def _candidate_detections(

@@ -104,6 +104,7 @@ from fingertips._geodesic_kernels import (
     symmetric_csr,
 )
 from fingertips.features import intrinsics_array, stride_for_budget, stride_for_spacing
+from fingertips.voting import apart_in_order
 from glovedb._validate import as_array
 
 NEIGHBOUR_OFFSETS = ((0, 1), (1, 0), (1, 1), (1, -1))
@@ -817,11 +818,7 @@ def _peaks(
 
 def _apart(points_m: NDArray[np.float32], radius_m: float) -> NDArray[np.bool_]:
     """Whether each point ``(K, 3)`` is at least ``radius_m`` from every earlier kept one."""
-    keep = np.ones(len(points_m), bool)
-    for k in range(1, len(points_m)):
-        earlier = points_m[:k][keep[:k]]
-        keep[k] = not (np.linalg.norm(earlier - points_m[k], axis=1) < radius_m).any()
-    return keep
+    return apart_in_order(points_m, np.arange(len(points_m)), radius_m)
 
 
 def _on_border(pixels_uv: NDArray[np.float32], shape: tuple[int, ...], stride: int) -> NDArray:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fingertips._voting_kernels import sorted_cubes, window_sums
+from fingertips._voting_kernels import kept_apart, sorted_cubes, window_sums
 from glovedb._validate import as_array
 
 
@@ -193,11 +193,33 @@ def find_peaks(votes: Votes, *, c_thr: float = 3.0, config: VotingConfig = DEFAU
         return empty
     confidence, _ = window_sums(modes, positions, weights, *cubes, radius)
     order = np.argsort(-confidence, kind="stable")
-    kept: list[int] = []
-    for index in order:
-        if confidence[index] < c_thr:
-            break
-        near = np.linalg.norm(modes[kept] - modes[index], axis=1) < config.min_separation_m
-        if not np.any(near):
-            kept.append(int(index))
+    confident = order[confidence[order] >= c_thr]  # a prefix: the order is descending
+    keep = apart_in_order(modes, confident, config.min_separation_m)
+    kept = confident[keep[confident]]
     return Peaks(modes[kept].astype(np.float32), confidence[kept].astype(np.float32))
+
+
+def apart_in_order(points_m: ArrayLike, order: ArrayLike, separation_m: float) -> NDArray[np.bool_]:
+    """Which points to keep so that the kept ones lie ``separation_m`` apart, earlier
+    ones in ``order`` first (the vote peaks by confidence, the candidates by tip
+    probability, the geodesic extrema by reach).
+
+    Parameters
+    ----------
+    points_m : (K, 3) float32
+        Points in metres.
+    order : (M,) int
+        The points to visit, best first; the others are not kept.
+    separation_m : float
+        A visited point is kept unless it lies nearer than this (compared in float32)
+        to one kept before it.
+
+    Returns
+    -------
+    (K,) bool
+    """
+    points = np.ascontiguousarray(as_array("points_m", points_m, (None, 3), np.float32))
+    visit = as_array("order", order, (None,), np.int64, kind="iu")
+    if len(visit) and (visit.min() < 0 or visit.max() >= len(points)):
+        raise ValueError(f"order: indices must lie in 0..{len(points) - 1}")
+    return kept_apart(points, np.ascontiguousarray(visit), np.float32(separation_m))

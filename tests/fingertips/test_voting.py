@@ -13,7 +13,7 @@ from fingertips import (
     fingertips_output,
 )
 from fingertips._voting_kernels import sorted_cubes, window_sums
-from fingertips.voting import Votes, find_peaks
+from fingertips.voting import Votes, apart_in_order, find_peaks
 
 
 def test_votes_peak_at_the_planted_tip() -> None:
@@ -94,6 +94,29 @@ def test_window_sums_are_the_sums_over_every_vote_within_the_radius() -> None:
     np.testing.assert_allclose(mass, inside @ w64, rtol=1e-12)
     np.testing.assert_allclose(moment, inside @ (w64[:, None] * p64), rtol=1e-12, atol=1e-15)
     assert inside.sum() > 2 * len(centres)  # the windows hold votes
+
+
+def test_points_kept_apart_are_those_of_the_numpy_greedy_loop() -> None:
+    """The compiled greedy separation against the loop it replaced (NumPy's float32
+    norm and comparison), with points placed exactly at the radius and just inside."""
+    rng = np.random.default_rng(5)
+    radius = 0.015
+    for trial in range(20):
+        points = rng.uniform(-0.03, 0.03, (30, 3)).astype(np.float32)
+        points[:3] = 0.0
+        points[1, 0] = radius  # exactly at the radius in float32: kept
+        points[2, 1] = np.nextafter(np.float32(radius), np.float32(0))  # just inside
+        order = np.r_[0, 1, 2, 3 + rng.permutation(27)[: 7 + trial]]
+        kept: list[int] = []
+        for index in order:
+            if not np.any(np.linalg.norm(points[kept] - points[index], axis=1) < radius):
+                kept.append(int(index))
+        expected = np.zeros(30, bool)
+        expected[kept] = True
+        np.testing.assert_array_equal(apart_in_order(points, order, radius), expected)
+    with pytest.raises(ValueError, match="order"):
+        apart_in_order(points, np.array([30]), radius)
+    assert not apart_in_order(points, np.zeros(0, np.int64), radius).any()
 
 
 def test_no_votes_give_no_detections() -> None:
