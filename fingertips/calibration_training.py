@@ -3,8 +3,9 @@
 The detector runs on every frame twice, with the model's recorded settings except:
 
 - for the ``"verifier"`` map, ``min_tip_probability`` lowered to ``min_probability``
-  and the heatmap stage off (on, when the model fuses the candidates' probabilities
-  with the heat, :mod:`fingertips.heat_fusion`; its peaks are then left out): the
+  and the heatmap stage off (on, when the model judges the candidates with the
+  heat, :mod:`fingertips.judge` or :mod:`fingertips.heat_fusion`; its peaks are then
+  left out): the
   forest's and geodesic detections of (almost) every verifier probability.
   Detections at a threshold are exactly those of this run with a probability that
   reaches it (the separation of detections does not depend
@@ -181,9 +182,10 @@ def calibration_samples(
         )
     model = without_calibration(model)
     detector = config if config is not None else model_detector_config(model)
-    # With a fusion (fingertips.heat_fusion) the candidates' probabilities need the
-    # heatmap stage on; its peaks are then left out of the first run's matching.
-    fused = model.heatmap is not None and model.heatmap.fusion is not None
+    # With a judge or a fusion (fingertips.judge, fingertips.heat_fusion) the
+    # candidates' probabilities need the heatmap stage on; its peaks are then left out
+    # of the first run's matching.
+    fused = model.heatmap is not None and model.heatmap.judges_candidates
     heat_for_fusion = detector.heatmap_min_probability if fused else 0.0
     runs: dict[ScoreKind, DetectorConfig] = {
         "verifier": replace(

@@ -45,6 +45,7 @@ from fingertips.heatmap import (
     heatmap_peaks,
     start_heatmaps,
 )
+from fingertips.judge import judged_probability
 from fingertips.segmentation import SEGMENTATION_METHODS, SegmentationMethod, segment_hand
 from fingertips.verify import verify_peaks
 from fingertips.voting import (
@@ -132,8 +133,9 @@ class DetectorConfig:
         the time per frame when a background surface lies within the band); 0: no
         bound. Vote weights scale with the stride, so confidences do not change.
     min_tip_probability : float
-        Peaks whose verifier probability (:mod:`fingertips.verify`; fused with the
-        heat of their map cell when the heatmap stage is on and the model has a fusion,
+        Peaks whose verifier probability (:mod:`fingertips.verify`; when the heatmap
+        stage is on and the model has a candidate judge, its probability from that and
+        the heat of their map cell, :mod:`fingertips.judge`, or an older model's fusion,
         :mod:`fingertips.heat_fusion`) is below this are dropped; 0 keeps every peak
         above ``c_thr`` (and is the only value allowed for a model without a
         verifier). With a verifier, ``c_thr`` only selects the candidate peaks.
@@ -469,6 +471,8 @@ class VerifiedCandidates(NamedTuple):
         Every candidate (:func:`candidate_peaks`), strongest first.
     probability : (K,) float32
         Their verifier probabilities.
+    features : (K, len(UNION_FEATURES)) float32
+        Their verifier features (:func:`fingertips.candidates.candidate_features`).
     hand_depth_m : (H, W) float32 or None
         The forest's hand depth when it is cut like the heatmap's crop centre needs it
         (:func:`fingertips.heatmap.hand_centre`), else None.
@@ -479,6 +483,7 @@ class VerifiedCandidates(NamedTuple):
 
     candidates: FrameCandidates
     probability: NDArray[np.float32]
+    features: NDArray[np.float32]
     hand_depth_m: NDArray[np.float32] | None
     geodesic: GeodesicCandidates | None
 
@@ -520,6 +525,7 @@ def verified_candidates(
     return VerifiedCandidates(
         candidates,
         verify_peaks(model.verifier, features),
+        features,
         masked if same_cut else None,
         None if geodesic is None else geodesic.result(),
     )
@@ -604,7 +610,10 @@ def detect_fingertips(
         probability = verify_peaks(model.verifier, features)
         heatmaps = None if heat is None else heat.result()
         tip_probability = probability
-        if heatmaps is not None and heatmap is not None and heatmap.fusion is not None:
+        if heatmaps is not None and heatmap is not None and heatmap.judge is not None:
+            heat_there = candidate_heat(heatmaps, candidates.positions_m)
+            tip_probability = judged_probability(heatmap.judge, probability, heat_there, features)
+        elif heatmaps is not None and heatmap is not None and heatmap.fusion is not None:
             heat_there = candidate_heat(heatmaps, candidates.positions_m)
             tip_probability = fused_probability(heatmap.fusion, probability, heat_there)
         # With the verifier off (min_tip_probability 0) the vote weight ranks, as without one.

@@ -49,7 +49,12 @@ The heatmap stage (:class:`fingertips.heatmap.HeatmapStage`) is stored as
 ``heatmap_node_left``, ``heatmap_node_right``, ``heatmap_node_value``, the scalars
 ``heatmap_baseline``, ``heatmap_passes`` and ``heatmap_min_value``, and
 ``heatmap_features`` ``(F'',) str``, checked against
-:data:`fingertips.heatmap.HEAT_PEAK_FEATURES`.
+:data:`fingertips.heatmap.HEAT_PEAK_FEATURES`. Its candidate judge
+(:class:`fingertips.judge.CandidateJudge`, format 5) is the node table
+``heatmap_judge_tree_roots``, ..., ``heatmap_judge_node_value`` with the scalar
+``heatmap_judge_baseline`` and ``heatmap_judge_features`` ``(J,) str``, checked
+against :data:`fingertips.judge.JUDGE_FEATURES`; format 4 files hold the logistic
+fusion that preceded it, ``heatmap_fusion`` ``(3,) float64``, instead.
 
 The confidence maps (:class:`fingertips.calibration.Calibration`) are stored as
 ``calibration_KIND_scores`` and ``calibration_KIND_probabilities`` ``(B,) float64``,
@@ -78,6 +83,7 @@ from fingertips.features import (
     read_probes,
 )
 from fingertips.heatmap import HEAT_PEAK_FEATURES, HeatmapNetwork, HeatmapStage
+from fingertips.judge import JUDGE_FEATURES, CandidateJudge
 from fingertips.trees import (
     FeatureLookup,
     PackedNodes,
@@ -90,8 +96,8 @@ from glovedb._files import write_atomically
 from glovedb._validate import as_array
 
 FORMAT_NAME = "glove-fingertip-forest"
-FORMAT_VERSION = 4
-READABLE_VERSIONS = (1, 2, 3, 4)
+FORMAT_VERSION = 5
+READABLE_VERSIONS = (1, 2, 3, 4, 5)
 _VERIFIER_ARRAYS = (
     "tree_roots",
     "node_feature",
@@ -263,7 +269,37 @@ def _heatmap_arrays(stage: HeatmapStage | None) -> dict[str, NDArray]:
             if stage.fusion is None
             else {"heatmap_fusion": np.asarray(stage.fusion, dtype=np.float64)}
         ),
+        **_judge_arrays(stage.judge),
     }
+
+
+def _judge_arrays(judge: CandidateJudge | None) -> dict[str, NDArray]:
+    if judge is None:
+        return {}
+    arrays = {f"heatmap_judge_{name}": getattr(judge, name) for name in _HEATMAP_TABLE}
+    return {
+        **arrays,
+        "heatmap_judge_baseline": np.array(judge.baseline, dtype=np.float64),
+        "heatmap_judge_features": np.array(JUDGE_FEATURES),
+    }
+
+
+def _read_judge(data: Any, path: str) -> CandidateJudge | None:
+    if "heatmap_judge_features" not in data:
+        return None
+    if tuple(str(name) for name in data["heatmap_judge_features"]) != JUDGE_FEATURES:
+        raise ValueError(
+            f"{path}: its candidate judge uses other features than this code; "
+            "retrain the model (docs/fingertips.md)"
+        )
+    kinds = {"node_threshold": np.float32, "node_value": np.float32}
+    return CandidateJudge(
+        **{
+            name: data[f"heatmap_judge_{name}"].astype(kinds.get(name, np.int32))
+            for name in _HEATMAP_TABLE
+        },
+        baseline=float(data["heatmap_judge_baseline"]),
+    )
 
 
 def _read_heatmap(data: Any, path: str) -> HeatmapStage | None:
@@ -286,6 +322,7 @@ def _read_heatmap(data: Any, path: str) -> HeatmapStage | None:
         passes=int(data["heatmap_passes"]),
         min_value=float(data["heatmap_min_value"]),
         fusion=data["heatmap_fusion"].astype(np.float64) if "heatmap_fusion" in data else None,
+        judge=_read_judge(data, path),
     )
 
 

@@ -48,6 +48,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from fingertips.features import intrinsics_array, mask_depth_range, nearest_band
 from fingertips.geodesic import GeodesicCandidates, geodesic_candidates
+from fingertips.judge import CandidateJudge
 from fingertips.pose_guess import hand_points_from_depth, masked_points
 from fingertips.trees import PackedNodes, check_tree_table, descend_matrix
 from glovedb._validate import as_array, check_choice
@@ -585,6 +586,10 @@ class HeatmapStage(PackedNodes):
         intercept, weight of
         the peak verifier's log-odds, weight of the heat's log-odds at the candidate;
         None (models trained before it): the peak verifier's probability stands.
+        Models trained now have a judge instead.
+    judge : CandidateJudge or None
+        The boosted trees that keep the candidates (:mod:`fingertips.judge`); when
+        given, the fusion is not used.
     """
 
     network_onnx: NDArray[np.uint8]
@@ -598,6 +603,7 @@ class HeatmapStage(PackedNodes):
     passes: int = 8
     min_value: float = 0.3
     fusion: NDArray[np.float64] | None = None
+    judge: CandidateJudge | None = None
 
     def __post_init__(self) -> None:
         check_tree_table(self, len(HEAT_PEAK_FEATURES))
@@ -609,6 +615,11 @@ class HeatmapStage(PackedNodes):
             raise ValueError(f"passes: expected one of {PASSES}, got {self.passes}")
         if not 0 <= self.min_value < 1:
             raise ValueError(f"min_value: expected a probability, got {self.min_value}")
+
+    @property
+    def judges_candidates(self) -> bool:
+        """Whether the candidates are kept by the judge or the fusion, which need the heat."""
+        return self.judge is not None or self.fusion is not None
 
     @cached_property
     def network(self) -> HeatmapNetwork:

@@ -95,9 +95,12 @@ class HeatmapTrainingConfig:
         ``[detector] heatmap_centre``, which the heatmap's verifier is fitted with; the
         shipped network was trained on ``"density"`` crops and is used with
         ``"fingers"`` (docs/fingertips.md, "The crop centre").
-    fuse_candidates : bool
-        Fit the candidates' fusion of the peak verifier and the heat
-        (:func:`fingertips.heat_fusion.fused_probability`) on the verifier's frames.
+    judge_candidates : bool
+        Fit the candidate judge (:mod:`fingertips.judge`) on the verifier's frames;
+        without it the detector keeps candidates by the peak verifier alone.
+    judge_iterations, judge_leaf_nodes : int
+        The judge's boosting iterations and leaves per tree.
+    judge_learning_rate : float
     seed : int
         Seeds PyTorch, the crop order and the boosting.
     """
@@ -124,11 +127,22 @@ class HeatmapTrainingConfig:
     quantize: bool = False
     quantize_crops: int = 200
     crop_centre: CropCentre = "density"
-    fuse_candidates: bool = True
+    judge_candidates: bool = True
+    judge_iterations: int = 300
+    judge_leaf_nodes: int = 31
+    judge_learning_rate: float = 0.05
     seed: int = 0
 
     def __post_init__(self) -> None:
-        for name in ("crops_per_seed", "width", "batch_size", "verifier_images", "quantize_crops"):
+        for name in (
+            "crops_per_seed",
+            "width",
+            "batch_size",
+            "verifier_images",
+            "quantize_crops",
+            "judge_iterations",
+            "judge_leaf_nodes",
+        ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: expected at least 1, got {getattr(self, name)}")
         if not self.crop_seeds or not self.verifier_seeds:

@@ -21,12 +21,12 @@ at run time does. Four steps, all deterministic on a CPU:
    :func:`fingertips.heatmap.heat_peak_features` and labelled true when within
    ``match_radius_m`` of a visible fingertip; scikit-learn's histogram gradient boosting
    learns the label and is exported to a node table.
-5. **Fusion** (:func:`fingertips.heat_fusion.fit_candidate_fusion`, with
-   ``fuse_candidates``): on the same frames every candidate of the forest and the
-   geodesic stage, labelled the same way, gives its peak verifier probability and the
-   heat of its map cell; a logistic regression of the label on both log-odds is the
-   candidates' fused probability at detection
-   (:func:`fingertips.heat_fusion.fused_probability`).
+5. **Judge** (:func:`fingertips.judge.fit_candidate_judge`, with
+   ``judge_candidates``): on the same frames every candidate of the forest and the
+   geodesic stage, labelled the same way, gives its peak verifier probability, the
+   heat of its map cell and its verifier features; histogram gradient boosting of the
+   label on them (:func:`fingertips.judge.judge_inputs`) decides at detection which
+   candidates are kept (:func:`fingertips.judge.judged_probability`).
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ from torch import nn
 from fingertips.data import FingertipDataConfig, generate_examples
 from fingertips.detect import DetectorConfig, verified_candidates
 from fingertips.forest import FingertipForest
-from fingertips.heat_fusion import candidate_heat, fit_candidate_fusion
+from fingertips.heat_fusion import candidate_heat
 from fingertips.heatmap import (
     GRID,
     HEAT_PEAK_FEATURES,
@@ -61,6 +61,7 @@ from fingertips.heatmap import (
 )
 from fingertips.heatmap_data import Crops, HeatmapTrainingConfig, render_crops
 from fingertips.heatmap_quantization import is_quantized, quantize_network
+from fingertips.judge import JUDGE_FEATURES, fit_candidate_judge, judge_inputs
 from fingertips.tree_export import pack_boosted_table
 
 # --- network ------------------------------------------------------------------------
@@ -302,17 +303,17 @@ class HeatSamples:
         The heat peaks' verifier features.
     labels : (N,) bool
         Which peaks lie within ``match_radius_m`` of a visible fingertip.
-    candidate_probability, candidate_heat : (M,) float32
-        Every candidate's peak verifier probability and the heat of its map cell
-        (:func:`fingertips.heatmap.candidate_heat`): the fusion's inputs.
+    candidate_inputs : (M, len(JUDGE_FEATURES)) float32
+        Every candidate's peak verifier probability, the heat of its map cell
+        (:func:`fingertips.heat_fusion.candidate_heat`) and its verifier features:
+        the judge's inputs (:func:`fingertips.judge.judge_inputs`).
     candidate_labels : (M,) bool
         Which candidates lie within ``match_radius_m`` of a visible fingertip.
     """
 
     features: NDArray[np.float32]
     labels: NDArray[np.bool_]
-    candidate_probability: NDArray[np.float32]
-    candidate_heat: NDArray[np.float32]
+    candidate_inputs: NDArray[np.float32]
     candidate_labels: NDArray[np.bool_]
 
 
@@ -341,9 +342,9 @@ def collect_heat_samples(
     if forest.verifier is None:
         raise ValueError("heatmap: the forest needs its peak verifier (a [verifier] table)")
     features, labels = [], []
-    candidate_probability, candidate_heats, candidate_labels = [], [], []
+    candidate_inputs, candidate_labels = [], []
     for depth_m, intrinsics, tips_m in images:
-        candidates, probability, hand, geodesic = verified_candidates(
+        candidates, probability, candidate_features, hand, geodesic = verified_candidates(
             depth_m, intrinsics, forest, config=detector
         )
         heatmaps = hand_heatmaps(
@@ -367,23 +368,20 @@ def collect_heat_samples(
         features.append(frame_features)
         labels.append(label_heat_peaks(peaks.xyz_m, tips_m, radius_m=config.match_radius_m))
         points = candidates.positions_m.astype(np.float64)
-        candidate_probability.append(probability.astype(np.float32))
-        candidate_heats.append(candidate_heat(heatmaps, points))
+        heat = candidate_heat(heatmaps, points)
+        candidate_inputs.append(judge_inputs(probability, heat, candidate_features))
         candidate_labels.append(label_heat_peaks(points, tips_m, radius_m=config.match_radius_m))
     if not features:
-        none = np.zeros(0, np.float32)
         return HeatSamples(
             np.zeros((0, len(HEAT_PEAK_FEATURES)), np.float32),
             np.zeros(0, bool),
-            none,
-            none,
+            np.zeros((0, len(JUDGE_FEATURES)), np.float32),
             np.zeros(0, bool),
         )
     return HeatSamples(
         np.concatenate(features),
         np.concatenate(labels),
-        np.concatenate(candidate_probability),
-        np.concatenate(candidate_heats),
+        np.concatenate(candidate_inputs),
         np.concatenate(candidate_labels),
     )
 
@@ -489,18 +487,21 @@ def train_heatmap(
     features = np.concatenate([part.features for part in parts])
     labels = np.concatenate([part.labels for part in parts])
     table = pack_boosted_table(fit_heat_verifier(features, labels, config))
-    fusion = None
-    if config.fuse_candidates:
-        fusion = fit_candidate_fusion(
-            np.concatenate([part.candidate_probability for part in parts]),
-            np.concatenate([part.candidate_heat for part in parts]),
+    judge = None
+    if config.judge_candidates:
+        judge = fit_candidate_judge(
+            np.concatenate([part.candidate_inputs for part in parts]),
             np.concatenate([part.candidate_labels for part in parts]),
+            iterations=config.judge_iterations,
+            leaf_nodes=config.judge_leaf_nodes,
+            learning_rate=config.judge_learning_rate,
+            seed=config.seed,
         )
     stage = HeatmapStage(
         network_onnx=network_onnx,
         passes=config.passes,
         min_value=config.min_value,
-        fusion=fusion,
+        judge=judge,
         **table,
     )
     settings = {
@@ -511,7 +512,7 @@ def train_heatmap(
             "n_peaks": int(labels.size),
             "n_true_peaks": int(labels.sum()),
             "n_candidates": int(sum(part.candidate_labels.size for part in parts)),
-            "fusion": None if fusion is None else [float(w) for w in fusion],
+            "n_true_candidates": int(sum(part.candidate_labels.sum() for part in parts)),
         },
         "detector": detector.as_dict(),
     }

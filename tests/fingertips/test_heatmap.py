@@ -28,12 +28,7 @@ from fingertips.detect import detection_points, detector_config_from_dict
 from fingertips.evaluation import AnnotatedDepth
 from fingertips.forest import load_forest, save_forest
 from fingertips.geodesic import no_candidates
-from fingertips.heat_fusion import (
-    candidate_heat,
-    fit_candidate_fusion,
-    fused_probability,
-    log_odds,
-)
+from fingertips.heat_fusion import candidate_heat, fused_probability
 from fingertips.heatmap import (
     CROP_HALF_M,
     CROP_PX,
@@ -56,6 +51,7 @@ from fingertips.heatmap import (
     heatmap_peaks,
     unturn_maps,
 )
+from fingertips.judge import JUDGE_FEATURES, CandidateJudge, log_odds
 from fingertips.tree_export import pack_boosted_table
 
 TINY_ONNX = Path(__file__).resolve().parents[1] / "data" / "fingertips" / "tiny_heatmap.onnx"
@@ -408,6 +404,24 @@ def test_model_file_keeps_the_heatmap_stage(tmp_path: Path) -> None:
     np.testing.assert_array_equal(fused_stage.fusion, [-1.0, 0.75, 0.5])
     with pytest.raises(ValueError, match="fusion"):
         replace(stage, fusion=np.array([1.0, np.nan, 0.0]))
+    judge = _judge_on_heat(threshold=0.5, below=-1.25, above=2.5, baseline=0.125)
+    judged = replace(forest, heatmap=replace(stage, judge=judge))
+    save_forest(judged, tmp_path / "j.npz")
+    judged_stage = load_forest(tmp_path / "j.npz").heatmap
+    assert judged_stage is not None and judged_stage.judge is not None
+    for name in ("tree_roots", "node_feature", "node_threshold", "node_left", "node_right"):
+        loaded_table = getattr(judged_stage.judge, name)
+        np.testing.assert_array_equal(loaded_table, getattr(judge, name), err_msg=name)
+        assert loaded_table.dtype == getattr(judge, name).dtype, name
+    np.testing.assert_array_equal(judged_stage.judge.node_value, judge.node_value)
+    assert judged_stage.judge.baseline == 0.125 and judged_stage.fusion is None
+    with np.load(tmp_path / "j.npz") as data:
+        judged_arrays = dict(data)
+    assert int(judged_arrays["format_version"]) == 5
+    other = np.array(["other"] * len(JUDGE_FEATURES))
+    np.savez(tmp_path / "other_judge.npz", **{**judged_arrays, "heatmap_judge_features": other})
+    with pytest.raises(ValueError, match="candidate judge uses other features"):
+        load_forest(tmp_path / "other_judge.npz")
 
     with np.load(tmp_path / "m.npz") as data:
         arrays = dict(data)
@@ -566,18 +580,6 @@ def test_fused_probability_is_the_logistic_of_both_log_odds() -> None:
     np.testing.assert_allclose(log_odds([0.0, 0.5, 1.0]), [-9.2102, 0.0, 9.2102], atol=1e-4)
 
 
-def test_fit_candidate_fusion_recovers_a_logistic_model() -> None:
-    rng = np.random.default_rng(4)
-    p = rng.uniform(0.01, 0.99, 20000).astype(np.float32)
-    heat = rng.uniform(0.01, 0.99, 20000).astype(np.float32)
-    truth = np.array([-0.5, 0.8, 1.6])
-    chance = 1 / (1 + np.exp(-(truth[0] + truth[1] * log_odds(p) + truth[2] * log_odds(heat))))
-    labels = rng.uniform(size=p.size) < chance
-    np.testing.assert_allclose(fit_candidate_fusion(p, heat, labels), truth, atol=0.1)
-    with pytest.raises(ValueError, match="both true and false"):
-        fit_candidate_fusion(p, heat, np.ones(p.size, bool))
-
-
 def test_detection_keeps_candidates_by_their_fused_probability() -> None:
     """The toy forest's one candidate (verifier 0.9) on the stub, whose cell the tiny
     network leaves cold: fusion [0, 1, 0] leaves the verifier's probability, [0, 0, 1]
@@ -608,6 +610,46 @@ def test_detection_keeps_candidates_by_their_fused_probability() -> None:
     assert kept[0].tip_probability == pytest.approx(expected, rel=1e-5)
 
 
+def _judge_on_heat(
+    *, threshold: float, below: float, above: float, baseline: float = 0.0
+) -> CandidateJudge:
+    """A judge of one tree that splits on the heat's log-odds at ``threshold``'s."""
+    return CandidateJudge(
+        tree_roots=np.array([0], np.int32),
+        node_feature=np.array([JUDGE_FEATURES.index("heat_log_odds"), -1, -1], np.int32),
+        node_threshold=np.array([log_odds(threshold), 0, 0], np.float32),
+        node_left=np.array([1, -1, -1], np.int32),
+        node_right=np.array([2, -1, -1], np.int32),
+        node_value=np.array([0.0, below, above], np.float32),
+        baseline=baseline,
+    )
+
+
+def test_detection_keeps_candidates_by_the_judges_probability() -> None:
+    """The toy forest's one candidate (verifier 0.9) lies in a cold cell of the tiny
+    network: a judge that trusts a cold cell keeps it at its own probability, one that
+    does not drops it (the stub's own heat peak then joins), and the judge rules where a
+    model has both a judge and a fusion; the heat peaks keep reading the verifier's 0.9."""
+    depth = _stub_and_domes()
+    config = replace(STRIDE_1, min_tip_probability=0.5, heatmap_min_probability=0.2)
+    model = _heatmap_model()
+    assert model.heatmap is not None
+    plain = detect_fingertips(depth, INTRINSICS, model, config=config)
+
+    def judged(judge: CandidateJudge, fusion: list[float] | None = None) -> tuple[Detection, ...]:
+        weights = None if fusion is None else np.array(fusion)
+        stage = replace(model.heatmap, judge=judge, fusion=weights)
+        return detect_fingertips(depth, INTRINSICS, replace(model, heatmap=stage), config=config)
+
+    kept = judged(_judge_on_heat(threshold=0.5, below=3.0, above=-3.0))
+    assert kept[0].source == "forest" and kept[1:] == plain[1:]
+    assert kept[0].tip_probability == pytest.approx(1 / (1 + np.exp(-3.0)), rel=1e-6)
+    dropped = judged(_judge_on_heat(threshold=0.5, below=-3.0, above=3.0))
+    assert [d.source for d in dropped] == ["heatmap"] * 3
+    assert set(plain[1:]) < set(dropped)
+    assert judged(_judge_on_heat(threshold=0.5, below=3.0, above=-3.0), [-12.0, 0, 0]) == kept
+
+
 def test_the_peak_verifier_map_is_fitted_on_the_fused_probabilities() -> None:
     """The calibration's "verifier" run keeps the heatmap on for a fused model (its
     candidates' probabilities need the heat) and scores only their detections."""
@@ -631,6 +673,10 @@ def test_the_peak_verifier_map_is_fitted_on_the_fused_probabilities() -> None:
     np.testing.assert_allclose(fused["verifier"][0], [forest.tip_probability], rtol=1e-6)
     assert fused["verifier"][1].tolist() == [True]
     assert 0.9 < float(fused["verifier"][0][0]) < 0.95
+    judge = _judge_on_heat(threshold=0.5, below=1.5, above=-3.0)
+    judged_model = replace(model, heatmap=replace(model.heatmap, judge=judge))
+    judged = calibration_samples(frames, judged_model, min_probability=0.05, config=config)
+    np.testing.assert_allclose(judged["verifier"][0], [1 / (1 + np.exp(-1.5))], rtol=1e-6)
 
 
 def test_heatmap_threshold_needs_the_forest_verifier_threshold() -> None:
