@@ -292,14 +292,17 @@ def _read_judge(data: Any, path: str) -> CandidateJudge | None:
             f"{path}: its candidate judge uses other features than this code; "
             "retrain the model (docs/fingertips.md)"
         )
-    kinds = {"node_threshold": np.float32, "node_value": np.float32}
     return CandidateJudge(
-        **{
-            name: data[f"heatmap_judge_{name}"].astype(kinds.get(name, np.int32))
-            for name in _HEATMAP_TABLE
-        },
-        baseline=float(data["heatmap_judge_baseline"]),
+        **_boosted_table(data, "heatmap_judge_"), baseline=float(data["heatmap_judge_baseline"])
     )
+
+
+def _boosted_table(data: Any, prefix: str) -> dict[str, NDArray]:
+    """The node table of boosted trees stored under ``prefix`` (``_HEATMAP_TABLE``)."""
+    kinds = {"node_threshold": np.float32, "node_value": np.float32}
+    return {
+        name: data[f"{prefix}{name}"].astype(kinds.get(name, np.int32)) for name in _HEATMAP_TABLE
+    }
 
 
 def _read_heatmap(data: Any, path: str) -> HeatmapStage | None:
@@ -311,13 +314,9 @@ def _read_heatmap(data: Any, path: str) -> HeatmapStage | None:
             f"{path}: its heatmap verifier uses other peak features than this code; "
             "retrain the model (docs/fingertips.md)"
         )
-    kinds = {"node_threshold": np.float32, "node_value": np.float32}
     return HeatmapStage(
         network_onnx=data["heatmap_network_onnx"].astype(np.uint8),
-        **{
-            name: data[f"heatmap_{name}"].astype(kinds.get(name, np.int32))
-            for name in _HEATMAP_TABLE
-        },
+        **_boosted_table(data, "heatmap_"),
         baseline=float(data["heatmap_baseline"]),
         passes=int(data["heatmap_passes"]),
         min_value=float(data["heatmap_min_value"]),

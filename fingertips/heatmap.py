@@ -46,11 +46,12 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fingertips import trees
 from fingertips.features import intrinsics_array, mask_depth_range, nearest_band
 from fingertips.geodesic import GeodesicCandidates, geodesic_candidates
 from fingertips.judge import CandidateJudge
 from fingertips.pose_guess import hand_points_from_depth, masked_points
-from fingertips.trees import PackedNodes, check_tree_table, descend_matrix
+from fingertips.trees import PackedNodes, check_tree_table
 from glovedb._validate import as_array, check_choice
 
 CROP_PX = 64
@@ -641,9 +642,7 @@ def boosted_probability(stage: HeatmapStage, features: ArrayLike) -> NDArray[np.
         From :func:`heat_peak_features`.
     """
     values = as_array("features", features, (None, len(HEAT_PEAK_FEATURES)), np.float32)
-    leaves = descend_matrix(stage, values)
-    log_odds = stage.baseline + stage.node_value[leaves].astype(np.float64).sum(axis=1)
-    return (1.0 / (1.0 + np.exp(-log_odds))).astype(np.float32)
+    return trees.boosted_probability(stage, values)
 
 
 @dataclass(frozen=True)

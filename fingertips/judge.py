@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fingertips.trees import PackedNodes, check_tree_table, descend_matrix
+from fingertips.trees import PackedNodes, boosted_probability, check_tree_table
 from fingertips.verify import UNION_FEATURES
 from glovedb._validate import as_array
 
@@ -96,25 +96,11 @@ def judge_inputs(
     ).astype(np.float32)
 
 
-def boosted_probability(judge: CandidateJudge, inputs: ArrayLike) -> NDArray[np.float32]:
-    """Probabilities ``(K,)``: the sigmoid of ``baseline`` plus the reached leaves' values.
-
-    Parameters
-    ----------
-    judge : CandidateJudge
-    inputs : (K, len(JUDGE_FEATURES)) float32
-        From :func:`judge_inputs`.
-    """
-    values = as_array("inputs", inputs, (None, len(JUDGE_FEATURES)), np.float32)
-    leaves = descend_matrix(judge, values)
-    odds = judge.baseline + judge.node_value[leaves].astype(np.float64).sum(axis=1)
-    return (1.0 / (1.0 + np.exp(-odds))).astype(np.float32)
-
-
 def judged_probability(
     judge: CandidateJudge, verifier_probability: ArrayLike, heat: ArrayLike, features: ArrayLike
 ) -> NDArray[np.float32]:
-    """The candidates' probabilities ``(K,)`` of being fingertips (see :func:`judge_inputs`)."""
+    """The candidates' probabilities ``(K,)`` of being fingertips: the judge's trees
+    (:func:`fingertips.trees.boosted_probability`) on :func:`judge_inputs`."""
     return boosted_probability(judge, judge_inputs(verifier_probability, heat, features))
 
 

@@ -105,6 +105,23 @@ def descend_matrix(table: TreeTable, values: NDArray[np.float32]) -> NDArray[np.
     )
 
 
+class BoostedTable(TreeTable, Protocol):
+    """Boosted trees: a node table whose leaves add ``node_value`` to ``baseline``."""
+
+    @property
+    def node_value(self) -> NDArray[np.float32]: ...
+    @property
+    def baseline(self) -> float: ...
+
+
+def boosted_probability(table: BoostedTable, values: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Probabilities ``(N,)`` of the rows of a float32 feature matrix ``(N, F)``: the
+    sigmoid of ``baseline`` plus the values of the leaves reached in every tree."""
+    leaves = descend_matrix(table, values)
+    log_odds = table.baseline + table.node_value[leaves].astype(np.float64).sum(axis=1)
+    return (1.0 / (1.0 + np.exp(-log_odds))).astype(np.float32)
+
+
 def descend(table: TreeTable, n_rows: int, lookup: FeatureLookup) -> NDArray[np.int32]:
     """Drop ``n_rows`` samples down every tree; features come from ``lookup`` on demand.
 
