@@ -1,8 +1,8 @@
 """Decision trees packed into one node table, and their descent.
 
 The fingertip forest (:mod:`fingertips.forest`), the peak verifier
-(:mod:`fingertips.verify`) and the heatmap's verifier
-(:mod:`fingertips.heatmap`) store their trees this way: node ``i`` tests
+(:mod:`fingertips.verify`), the heatmap's verifier (:mod:`fingertips.heatmap`) and the
+candidate judge (:mod:`fingertips.judge`) store their trees this way: node ``i`` tests
 feature ``node_feature[i]`` (-1 at a leaf) against ``node_threshold[i]`` and continues
 at ``node_left[i]`` (value <= threshold) or ``node_right[i]``; tree ``t`` starts at
 ``tree_roots[t]``. :func:`descend` moves every (sample, tree) pair at once, level by
