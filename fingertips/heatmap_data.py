@@ -141,7 +141,6 @@ class HeatmapTrainingConfig:
             "verifier_images",
             "quantize_crops",
             "judge_iterations",
-            "judge_leaf_nodes",
         ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: expected at least 1, got {getattr(self, name)}")
@@ -151,6 +150,17 @@ class HeatmapTrainingConfig:
             raise ValueError("whole_hand_epochs, all_epochs: expected 0 or more")
         if self.whole_hand_epochs + self.all_epochs < 1:
             raise ValueError("whole_hand_epochs + all_epochs: expected at least one epoch")
+        for name in ("verifier_leaf_nodes", "judge_leaf_nodes"):
+            if getattr(self, name) < 2:
+                raise ValueError(f"{name}: expected at least 2, got {getattr(self, name)}")
+        for name in (
+            "whole_hand_learning_rate",
+            "all_learning_rate",
+            "verifier_learning_rate",
+            "judge_learning_rate",
+        ):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}: expected a positive rate, got {getattr(self, name)}")
         check_choice("crop_centre", self.crop_centre, CROP_CENTRES)
         if self.passes not in PASSES:
             raise ValueError(f"passes: expected one of {PASSES}, got {self.passes}")

@@ -54,6 +54,15 @@ def test_config_reads_data_overrides_and_refuses_bad_values() -> None:
     assert heatmap_config_from_dict({"crop_centre": "fingers"}).crop_centre == "fingers"
     with pytest.raises(ValueError, match="curl_fracton"):
         heatmap_config_from_dict({"data": {"curl_fracton": 0.3}})
+    with pytest.raises(ValueError, match="judge_leaf_nodes: expected at least 2"):
+        heatmap_config_from_dict({"judge_leaf_nodes": 1})
+    with pytest.raises(ValueError, match="judge_iterations"):
+        heatmap_config_from_dict({"judge_iterations": 0})
+    with pytest.raises(ValueError, match="judge_learning_rate: expected a positive rate"):
+        heatmap_config_from_dict({"judge_learning_rate": 0.0})
+    with pytest.raises(ValueError, match="verifier_learning_rate"):
+        heatmap_config_from_dict({"verifier_learning_rate": -0.1})
+    assert not heatmap_config_from_dict({"judge_candidates": False}).judge_candidates
 
 
 def test_crop_files_round_trip_and_join_in_the_given_order(tmp_path: Path) -> None:
