@@ -91,3 +91,66 @@ def list_distances(
             squared += spreads[j] * value * value
         mean[index] = total
         spread[index] = np.sqrt(squared)
+
+
+_BINS = 1024
+
+
+@numba.njit(nogil=True, cache=True)
+def probe_prefix(
+    score: NDArray[np.float32],
+    images: NDArray[np.int64],
+    entries: NDArray[np.int64],
+    wanted_images: float,
+    min_entries: int,
+    chosen: NDArray[np.bool_],
+) -> None:
+    """Mark the shortest prefix of the lists ranked by ``(score, list)`` ascending that
+    holds at least ``wanted_images`` images and ``min_entries`` entries (every list
+    when none does), without sorting them all.
+
+    ``score (L,) float32`` finite, ``images, entries (L,) int64`` per list, ``chosen
+    (L,) bool`` the result. The scores are binned by value (a monotone map, so a bin
+    holds a contiguous stretch of the ranking); the bins' running sums find the bin
+    in which the prefix ends, and only that bin's lists are sorted.
+    """
+    count = len(score)
+    low = score.min()
+    high = score.max()
+    scale = (_BINS - 1) / (high - low) if high > low else 0.0
+    bin_images = np.zeros(_BINS, np.int64)
+    bin_entries = np.zeros(_BINS, np.int64)
+    bins = np.empty(count, np.int64)
+    for index in range(count):
+        which = min(_BINS - 1, int((score[index] - low) * scale))
+        bins[index] = which
+        bin_images[which] += images[index]
+        bin_entries[which] += entries[index]
+    held_images = 0
+    held_entries = 0
+    last = _BINS
+    for which in range(_BINS):
+        if held_images + bin_images[which] >= wanted_images and (
+            held_entries + bin_entries[which] >= min_entries
+        ):
+            last = which
+            break
+        held_images += bin_images[which]
+        held_entries += bin_entries[which]
+    if last == _BINS:
+        chosen[:] = True
+        return
+    members = np.flatnonzero(bins == last)
+    keys = np.empty(len(members), np.float64)
+    for position in range(len(members)):
+        keys[position] = score[members[position]]
+    order = np.argsort(keys, kind="mergesort")  # stable: ties stay in list order
+    for index in range(count):
+        chosen[index] = bins[index] < last
+    for position in order:
+        member = members[position]
+        chosen[member] = True
+        held_images += images[member]
+        held_entries += entries[member]
+        if held_images >= wanted_images and held_entries >= min_entries:
+            return

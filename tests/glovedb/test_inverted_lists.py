@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from glovedb import _list_kernels
 from glovedb.chamfer import chamfer_maps
 from glovedb.database import GloveDatabase
 from glovedb.distinct_images import distinct_tiny_images
@@ -99,6 +100,28 @@ def test_probing_takes_the_shortest_prefix_of_the_ranking(images, lists, share):
         )
         expected = np.sort(ranked[:taken])
         np.testing.assert_array_equal(probed_lists(lists, maps, k), expected)
+
+
+def test_the_compiled_prefix_is_the_sorted_one_with_ties():
+    """``probe_prefix`` bins the scores instead of sorting them: the same lists as
+    sorting by (score, list) and cutting, with many tied scores and a bin holding
+    the cut, and every list when no prefix holds enough."""
+    rng = np.random.default_rng(5)
+    for trial in range(200):
+        count = int(rng.integers(1, 300))
+        levels = rng.choice([3, 50, 10_000])  # few levels: many ties
+        score = (rng.integers(0, levels, count) / levels - 0.3).astype(np.float32)
+        images = rng.integers(1, 40, count).astype(np.int64)
+        entries = images * rng.integers(1, 3, count)
+        wanted = float(rng.uniform(0, 1.1) * images.sum())
+        k = int(rng.integers(1, int(1.1 * entries.sum()) + 2))
+        ranked = np.argsort(score, kind="stable")
+        enough = (np.cumsum(images[ranked]) >= wanted) & (np.cumsum(entries[ranked]) >= k)
+        expected = np.zeros(count, bool)
+        expected[ranked[: int(np.argmax(enough)) + 1] if enough.any() else ranked] = True
+        chosen = np.empty(count, bool)
+        _list_kernels.probe_prefix(score, images, entries, wanted, k, chosen)
+        np.testing.assert_array_equal(chosen, expected, err_msg=f"trial {trial}")
 
 
 @pytest.mark.parametrize("repeats", [False, True])
