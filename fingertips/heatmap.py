@@ -37,11 +37,12 @@ are trained by :mod:`fingertips.heatmap_training` (docs/fingertips.md).
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -53,6 +54,9 @@ from fingertips.judge import CandidateJudge
 from fingertips.pose_guess import hand_points_from_depth, masked_points
 from fingertips.trees import PackedNodes, check_tree_table
 from glovedb._validate import as_array, check_choice
+
+if TYPE_CHECKING:
+    from onnxruntime import InferenceSession as _Session
 
 CROP_PX = 64
 """Side of the hand crop, pixels."""
@@ -507,6 +511,73 @@ def onnx_bytes(network_onnx: bytes | NDArray[np.uint8]) -> bytes:
     return network_onnx if isinstance(network_onnx, bytes) else network_onnx.tobytes()
 
 
+QUANTIZED_OP = b"QuantizeLinear"
+"""An operator that only a quantized (QDQ) network holds: its name appears in the
+ONNX bytes."""
+KERNEL_TOLERANCE = 0.05
+"""Largest difference of a fingertip probability between a network's fused kernels and
+its reference graph on :func:`check_crop` (rounding gives about 0.02)."""
+
+
+def is_quantized(network_onnx: bytes | NDArray[np.uint8]) -> bool:
+    """Whether an ONNX heatmap network is quantized (holds QDQ operators)."""
+    return QUANTIZED_OP in onnx_bytes(network_onnx)
+
+
+def check_crop() -> NDArray[np.float32]:
+    """A crop ``(CROP_PX, CROP_PX)`` like the detector's: a palm, four fingers and a thumb
+    15-30 mm in front of the crop centre, the background missing (1)."""
+    rows, cols = np.mgrid[0:CROP_PX, 0:CROP_PX]
+    crop = np.ones((CROP_PX, CROP_PX), np.float32)
+    crop[(rows - 36) ** 2 + (cols - 32) ** 2 < 14**2] = -0.2
+    for top, left, width in ((8, 20, 4), (6, 28, 4), (8, 36, 4), (12, 44, 3)):
+        crop[top:36, left : left + width] = -0.1
+    crop[30:44, 10:20] = -0.2
+    return crop
+
+
+def kernels_agree(fused: _Session, reference: _Session) -> bool:
+    """Whether a network's optimised session gives its reference graph's fingertip
+    probabilities on :func:`check_crop`, within :data:`KERNEL_TOLERANCE`.
+
+    onnxruntime runs a quantized network with fused integer kernels. On x86 CPUs without
+    VNNI (AVX2 only: AMD Zen 1-3, Intel before Ice Lake) its kernels for unsigned 8-bit
+    activations times signed 8-bit weights add pairs of products in 16 bits, which
+    saturate: the shipped network's heatmaps came out as noise on such a CPU (the
+    probabilities of 100 crops differed by a median 0.89 from its reference graph),
+    and the detector found 1 % of the tips. :func:`fingertips.heatmap_quantization.\
+unsigned_weights` stores the weights unsigned, which those kernels add without
+    saturating; this check catches a network that was not so stored, or any other
+    kernel that disagrees.
+    """
+    views = crop_views(check_crop(), 1)
+    probability = [
+        1.0 / (1.0 + np.exp(-np.asarray(session.run(None, {"crops": views})[0], np.float64)))
+        for session in (fused, reference)
+    ]
+    return bool(np.abs(probability[0] - probability[1]).max() <= KERNEL_TOLERANCE)
+
+
+def _network_session(content: bytes, *, fused: bool) -> _Session:
+    """An onnxruntime session of the network on one thread (:class:`HeatmapNetwork`):
+    with all graph optimisations (fused kernels), or only those that keep every
+    operator's arithmetic (the reference graph: a quantized network's convolutions then
+    run in float between its quantize and dequantize operators)."""
+    import onnxruntime
+
+    options = onnxruntime.SessionOptions()
+    options.inter_op_num_threads = 1
+    options.intra_op_num_threads = 1  # one thread beside the forest: see HeatmapNetwork
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    options.log_severity_level = 3
+    if not fused:
+        options.graph_optimization_level = onnxruntime.GraphOptimizationLevel.ORT_ENABLE_BASIC
+    try:
+        return onnxruntime.InferenceSession(content, options, providers=["CPUExecutionProvider"])
+    except Exception as error:  # onnxruntime raises its own unexported exception types
+        raise ValueError(f"heatmap network: not a loadable ONNX model ({error})") from error
+
+
 class HeatmapNetwork:
     """An ONNX heatmap network run by onnxruntime on the turned and mirrored crops.
 
@@ -518,32 +589,43 @@ class HeatmapNetwork:
     passes : int
         Averaged passes (:func:`crop_views`).
 
+    Attributes
+    ----------
+    reference_graph : bool
+        Whether the network runs as its reference graph, its fused kernels having
+        disagreed with it (:func:`kernels_agree`).
+
     The network runs on one thread that does not spin while it waits for work: the
     detector runs it beside the forest (:func:`start_heatmaps`), and more or spinning
     threads would take the cores the forest, the geodesic stage and the frame decoding
     need (`glove bench fingertips` on 200 validation frames with the 8-bit network, two
     interleaved pairs: 69-73 frames/s with one thread, 66-67 with two).
+
+    A quantized network is checked once against its reference graph
+    (:func:`kernels_agree`); where the fused kernels disagree, it runs as the reference
+    graph, with a ``RuntimeWarning``.
     """
 
     def __init__(self, network_onnx: bytes | NDArray[np.uint8], passes: int) -> None:
-        import onnxruntime
-
         if passes not in PASSES:
             raise ValueError(f"passes: expected one of {PASSES}, got {passes}")
         self.passes = passes
         self._worker: ThreadPoolExecutor | None = None
-        options = onnxruntime.SessionOptions()
-        options.inter_op_num_threads = 1
-        options.intra_op_num_threads = 1  # one thread beside the forest: see the docstring
-        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        options.log_severity_level = 3
         content = onnx_bytes(network_onnx)
-        try:
-            self._session = onnxruntime.InferenceSession(
-                content, options, providers=["CPUExecutionProvider"]
-            )
-        except Exception as error:  # onnxruntime raises its own unexported exception types
-            raise ValueError(f"heatmap network: not a loadable ONNX model ({error})") from error
+        self._session = _network_session(content, fused=True)
+        self.reference_graph = False
+        if is_quantized(content):
+            reference = _network_session(content, fused=False)
+            if not kernels_agree(self._session, reference):
+                warnings.warn(
+                    "heatmap network: onnxruntime's fused 8-bit kernels give other "
+                    "heatmaps than the network's reference graph on this CPU (a network "
+                    "with signed 8-bit weights on a CPU without VNNI); running the "
+                    "reference graph, which is right but about 3 times slower",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
+                self._session, self.reference_graph = reference, True
 
     def __call__(self, crop: NDArray[np.float32]) -> NDArray[np.float32]:
         """Fingertip probabilities ``(passes, GRID, GRID)`` of every pass, turned back."""

@@ -14,7 +14,8 @@ at run time does. Four steps, all deterministic on a CPU:
 3. **Export** (:func:`export_onnx`): ONNX bytes that onnxruntime runs at detection;
    with ``quantize`` they are quantized to 8 bits
    (:mod:`fingertips.heatmap_quantization`), calibrated on the crops of
-   ``quantize_crops`` frames of the first crop seed (a given float network too).
+   ``quantize_crops`` frames of the first crop seed (a given float network too), their
+   weights stored unsigned (a given quantized network's too).
 4. **Verifier** (:func:`collect_heat_samples`, :func:`fit_heat_verifier`): on
    ``verifier_images`` more frames per seed of ``verifier_seeds`` the exported
    network's peaks are described by
@@ -60,7 +61,7 @@ from fingertips.heatmap import (
     hand_heatmaps,
 )
 from fingertips.heatmap_data import Crops, HeatmapTrainingConfig, render_crops
-from fingertips.heatmap_quantization import is_quantized, quantize_network
+from fingertips.heatmap_quantization import is_quantized, quantize_network, unsigned_weights
 from fingertips.judge import JUDGE_FEATURES, fit_candidate_judge, judge_inputs
 from fingertips.tree_export import pack_boosted_table
 
@@ -465,6 +466,8 @@ def train_heatmap(
             progress=progress,
         )
         network_onnx = quantize_network(network_onnx, calibration.images, passes=config.passes)
+    elif is_quantized(network_onnx):  # a given network, quantized before weights were unsigned
+        network_onnx = unsigned_weights(network_onnx)
     network = HeatmapNetwork(network_onnx, config.passes)
     parts = []
     for seed in config.verifier_seeds:

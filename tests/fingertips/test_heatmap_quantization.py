@@ -10,8 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fingertips.heatmap import HeatmapNetwork
-from fingertips.heatmap_quantization import is_quantized, quantize_network
+import fingertips.heatmap
+from fingertips.heatmap import HeatmapNetwork, check_crop, crop_views, unturn_maps
+from fingertips.heatmap_quantization import is_quantized, quantize_network, unsigned_weights
 
 TINY_ONNX = Path(__file__).resolve().parents[1] / "data" / "fingertips" / "tiny_heatmap.onnx"
 
@@ -53,3 +54,63 @@ def test_quantizing_refuses_a_quantized_network_and_no_crops() -> None:
     quantized = quantize_network(float_network, _crops(1, 8), passes=1)
     with pytest.raises(ValueError, match="already quantized"):
         quantize_network(quantized, _crops(1, 8), passes=1)
+
+
+def _signed(network: np.ndarray) -> bytes:
+    """The quantized network with its weights stored signed, as onnxruntime quantizes."""
+    import onnx
+    from onnx import numpy_helper
+
+    model = onnx.load_from_string(network.tobytes())
+    initializers = {tensor.name: tensor for tensor in model.graph.initializer}
+    weights = [
+        node.input[:3:2]  # values, zero point
+        for node in model.graph.node
+        if node.op_type == "DequantizeLinear" and node.input[0] in initializers
+    ]
+    for names in weights:
+        tensors = [initializers[name] for name in names]
+        if tensors[0].data_type != onnx.TensorProto.UINT8:
+            continue  # the biases are 32-bit
+        for tensor in tensors:
+            shifted = numpy_helper.to_array(tensor).astype(np.int16) - 128
+            tensor.CopyFrom(numpy_helper.from_array(shifted.astype(np.int8), tensor.name))
+    return model.SerializeToString()
+
+
+def _reference_logits(network: bytes, crop: np.ndarray) -> np.ndarray:
+    from fingertips.heatmap import _network_session
+
+    return _network_session(network, fused=False).run(None, {"crops": crop_views(crop, 4)})[0]
+
+
+def test_unsigned_weights_are_the_same_network() -> None:
+    onnx = pytest.importorskip("onnx", reason="quantizing needs the onnx package (train extra)")
+    unsigned = quantize_network(TINY_ONNX.read_bytes(), _crops(1, 40), passes=4)
+    graph = onnx.load_from_string(unsigned.tobytes()).graph
+    assert onnx.TensorProto.INT8 not in {tensor.data_type for tensor in graph.initializer}
+    signed = _signed(unsigned)
+    assert signed != unsigned.tobytes()
+    # Every dequantized weight is the same: the reference graphs agree exactly.
+    for crop in [*_crops(4, 5), check_crop()]:
+        np.testing.assert_array_equal(
+            _reference_logits(signed, crop), _reference_logits(unsigned.tobytes(), crop)
+        )
+    np.testing.assert_array_equal(unsigned_weights(signed), unsigned)
+    np.testing.assert_array_equal(unsigned_weights(unsigned), unsigned)  # unsigned already
+    with pytest.raises(ValueError, match="not quantized"):
+        unsigned_weights(TINY_ONNX.read_bytes())
+
+
+def test_a_network_whose_kernels_disagree_runs_its_reference_graph(monkeypatch) -> None:
+    pytest.importorskip("onnx", reason="quantizing needs the onnx package (train extra)")
+    quantized = quantize_network(TINY_ONNX.read_bytes(), _crops(1, 8), passes=4)
+    crop = _crops(5, 1)[0]
+    assert not HeatmapNetwork(quantized, 4).reference_graph  # agrees on every CPU
+    monkeypatch.setattr(fingertips.heatmap, "kernels_agree", lambda fused, reference: False)
+    with pytest.warns(RuntimeWarning, match="reference graph"):
+        network = HeatmapNetwork(quantized, 4)
+    assert network.reference_graph
+    logits = _reference_logits(quantized.tobytes(), crop).astype(np.float64)
+    expected = unturn_maps((1.0 / (1.0 + np.exp(-logits))).astype(np.float32), 4)
+    np.testing.assert_allclose(network(crop), expected, rtol=0, atol=1e-6)

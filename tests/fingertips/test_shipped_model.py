@@ -2,12 +2,14 @@
 
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
 
 from fingertips import detect_fingertips, load_forest, model_detector_config
 from fingertips.forest import DEFAULT_MODEL_PATH
+from fingertips.heatmap import HeatmapNetwork
 from fingertips.heatmap_quantization import is_quantized
 
 
@@ -21,6 +23,23 @@ def test_shipped_model_loads_and_is_small() -> None:
     assert model.verifier is not None and config.min_tip_probability > 0
     assert model.heatmap is not None and config.heatmap_min_probability > 0
     assert is_quantized(model.heatmap.network_onnx)  # the 8-bit network (3x faster)
+
+
+def test_shipped_network_runs_its_fused_kernels_on_this_cpu() -> None:
+    # Its weights are stored unsigned: signed 8-bit weights saturate onnxruntime's
+    # kernels on CPUs without VNNI, where the network then warns and runs its
+    # (3 times slower) reference graph. Before, it gave noise there.
+    network = load_forest().heatmap.network_onnx
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert not HeatmapNetwork(network, 4).reference_graph
+
+
+def test_shipped_network_holds_no_signed_weights() -> None:
+    onnx = pytest.importorskip("onnx", reason="reading the graph needs the onnx package")
+    graph = onnx.load_from_string(load_forest().heatmap.network_onnx.tobytes()).graph
+    types = {tensor.data_type for tensor in graph.initializer}
+    assert onnx.TensorProto.UINT8 in types and onnx.TensorProto.INT8 not in types
 
 
 def test_shipped_model_needs_no_scikit_learn_or_torch() -> None:
