@@ -545,10 +545,10 @@ def kernels_agree(fused: _Session, reference: _Session) -> bool:
     activations times signed 8-bit weights add pairs of products in 16 bits, which
     saturate: the shipped network's heatmaps came out as noise on such a CPU (the
     probabilities of 100 crops differed by a median 0.89 from its reference graph),
-    and the detector found 1 % of the tips. :func:`fingertips.heatmap_quantization.\
-unsigned_weights` stores the weights unsigned, which those kernels add without
-    saturating; this check catches a network that was not so stored, or any other
-    kernel that disagrees.
+    and the detector found 1 % of the tips.
+    :func:`~fingertips.heatmap_quantization.unsigned_weights` stores the weights
+    unsigned, which those kernels add without saturating; this check catches a network
+    that was not so stored, or any other kernel that disagrees.
     """
     views = crop_views(check_crop(), 1)
     probability = [
