@@ -13,6 +13,11 @@ from numpy.typing import NDArray
 # Reassociation lets LLVM interleave the sums; infinities must stay legal.
 _FASTMATH = {"reassoc", "contract"}
 
+_POSITIONS_8X8 = 16
+"""Code positions of an 8 x 8 image in 4-pixel codes (the first stage's layout)."""
+_CODES_OF_4 = 11**4
+"""Codes of 4 pixels: the row length of an 8 x 8 image's table."""
+
 
 @numba.njit(nogil=True, cache=True, fastmath=_FASTMATH, inline="always")
 def _row_error(
@@ -53,6 +58,10 @@ def score_rows(
     summed chamfer distances per group position and code, ``glove_pixels (M,) uint16``
     the glove pixel counts (0 gives ``inf``).
     """
+    if _is_8x8(codes, table):
+        flat_table = table.reshape(table.size)
+        _score_8x8_rows(codes, glove_pixels, flat_table, start, stop, errors[start:])
+        return
     for row in range(start, stop):
         errors[row] = _row_error(codes, glove_pixels, table, row)
 
@@ -69,11 +78,56 @@ def score_ranges(
     """Like :func:`score_rows` over the rows of each range ``starts[i]:stops[i]``, the
     errors of all ranges written one after the other into ``errors`` (the few hundred
     lists a query probes, in one call)."""
+    if _is_8x8(codes, table):
+        flat_table = table.reshape(table.size)
+        out = 0
+        for index in range(len(starts)):
+            start, stop = starts[index], stops[index]
+            _score_8x8_rows(codes, glove_pixels, flat_table, start, stop, errors[out:])
+            out += stop - start
+        return
     out = 0
     for index in range(len(starts)):
         for row in range(starts[index], stops[index]):
             errors[out] = _row_error(codes, glove_pixels, table, row)
             out += 1
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _is_8x8(codes: NDArray[np.uint16], table: NDArray[np.float32]) -> bool:
+    """Whether the rows are 8 x 8 images in 4-pixel codes, for :func:`_score_8x8_rows`."""
+    return codes.shape[1] == _POSITIONS_8X8 and table.shape[1] == _CODES_OF_4
+
+
+@numba.njit(nogil=True, cache=True)
+def _score_8x8_rows(
+    codes: NDArray[np.uint16],
+    glove_pixels: NDArray[np.uint16],
+    flat_table: NDArray[np.float32],
+    start: int,
+    stop: int,
+    errors: NDArray[np.float32],
+) -> None:
+    """:func:`_row_error` of rows ``start:stop`` of 8 x 8 images in 4-pixel codes, into
+    ``errors[0:stop - start]``; ``flat_table`` is the ``(16, 11**4)`` table flattened.
+
+    With the positions and the table's row length constants, each lookup is one load
+    with a constant offset; the generic loop spends an address multiplication on each
+    and, with reassociation, LLVM assembles rows into vectors lookup by lookup. On a
+    2-core AMD EPYC (Zen 3) that took 2.3 times as long (29 against 13 ns per image).
+    Without reassociation the sums are added in this order, which may differ from the
+    generic loop's in the last bit.
+    """
+    for row in range(start, stop):
+        sum0 = sum1 = sum2 = sum3 = np.float32(0.0)
+        for position in range(0, _POSITIONS_8X8, 4):
+            sum0 += flat_table[position * _CODES_OF_4 + codes[row, position]]
+            sum1 += flat_table[(position + 1) * _CODES_OF_4 + codes[row, position + 1]]
+            sum2 += flat_table[(position + 2) * _CODES_OF_4 + codes[row, position + 2]]
+            sum3 += flat_table[(position + 3) * _CODES_OF_4 + codes[row, position + 3]]
+        count = glove_pixels[row]
+        total = (sum0 + sum1) + (sum2 + sum3)
+        errors[row - start] = np.float32(np.inf) if count == 0 else total / np.float32(count)
 
 
 @numba.njit(nogil=True, cache=True, fastmath=_FASTMATH)
