@@ -515,7 +515,7 @@ def apply_probe_image(
         np.ascontiguousarray(probes_m, dtype=np.float32),
         np.ascontiguousarray(pixels),
         reference.astype(np.float32),
-        forest.offsets_m,
+        np.ascontiguousarray(forest.offsets_m, dtype=np.float32),
         (float(fx), float(fy)),
         forest.tree_roots,
         forest.packed_nodes,
