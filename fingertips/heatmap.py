@@ -551,11 +551,15 @@ def kernels_agree(fused: _Session, reference: _Session) -> bool:
     that was not so stored, or any other kernel that disagrees.
     """
     views = crop_views(check_crop(), 1)
-    probability = [
-        1.0 / (1.0 + np.exp(-np.asarray(session.run(None, {"crops": views})[0], np.float64)))
-        for session in (fused, reference)
-    ]
-    return bool(np.abs(probability[0] - probability[1]).max() <= KERNEL_TOLERANCE)
+    difference = _probabilities(fused, views) - _probabilities(reference, views)
+    return bool(np.abs(difference).max() <= KERNEL_TOLERANCE)
+
+
+def _probabilities(session: _Session, views: NDArray[np.float32]) -> NDArray[np.float64]:
+    """Fingertip probabilities ``(N, GRID, GRID)`` of a network session on crop views
+    ``(N, 1, CROP_PX, CROP_PX)``: the sigmoid of its logits."""
+    (logits,) = session.run(None, {"crops": views})
+    return 1.0 / (1.0 + np.exp(-np.asarray(logits, dtype=np.float64)))
 
 
 def _network_session(content: bytes, *, fused: bool) -> _Session:
@@ -629,9 +633,7 @@ class HeatmapNetwork:
 
     def __call__(self, crop: NDArray[np.float32]) -> NDArray[np.float32]:
         """Fingertip probabilities ``(passes, GRID, GRID)`` of every pass, turned back."""
-        views = crop_views(crop, self.passes)
-        (logits,) = self._session.run(None, {"crops": views})
-        probability = 1.0 / (1.0 + np.exp(-np.asarray(logits, dtype=np.float64)))
+        probability = _probabilities(self._session, crop_views(crop, self.passes))
         return unturn_maps(probability.astype(np.float32), self.passes)
 
     def submit(self, task: Callable[[], HandHeatmaps]) -> Future[HandHeatmaps]:
