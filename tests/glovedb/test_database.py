@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from helpers import write_format_1
 
-from glovedb._row_codec import decode_rows, encode_rows, score_rows
+from glovedb._row_codec import _running_sums, decode_rows, encode_rows, score_rows
 from glovedb.chamfer import chamfer_maps, directed_distance
 from glovedb.database import GloveDatabase, RowLayout, read_rows, score_file_rows
 from glovedb.lookup import DatabaseIndex
@@ -118,6 +118,13 @@ def test_rows_are_scored_from_their_runs_as_their_images_are():
         score_file_rows(
             layout, functools.partial(read, data=flipped), np.array([3, 1]), maps, "db.h5"
         )
+
+
+def test_compiled_running_sums_are_numpys_bit_for_bit():
+    maps = np.random.default_rng(5).random((10, 64 * 64), dtype=np.float32) * 40
+    sums = _running_sums(maps)
+    assert sums.shape == (11, 64 * 64 + 1) and not sums[0].any() and not sums[:, 0].any()
+    np.testing.assert_array_equal(sums[1:, 1:], np.cumsum(maps.astype(np.float64), axis=1))
 
 
 def test_read_rows_gathers_runs_of_entries_and_refuses_short_reads():
