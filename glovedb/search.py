@@ -76,7 +76,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from glovedb import _search_kernels
-from glovedb._ordering import value_id_order
+from glovedb._ordering import split_keys, value_id_order
 from glovedb._threads import run_parts, thread_pool
 from glovedb._validate import as_array, check_choice
 from glovedb.chamfer import (
@@ -489,18 +489,14 @@ def _smallest_in_ranges(
     k = min(k, len(errors))
     if k == 0:
         return np.empty(0, np.int64), np.empty(0, np.float32)
-    kept_ids = np.empty(len(errors), np.int64)
-    kept_errors = np.empty(len(errors), np.float32)
+    keys = np.empty(len(errors), np.uint64)
     bound = _candidate_bound(errors, k)
-    count = _search_kernels.entries_at_most(
-        errors, entry_ids, starts, lengths, bound, kept_ids, kept_errors
-    )
+    count = _search_kernels.keys_at_most(errors, entry_ids, starts, lengths, bound, keys)
     if count < k:
-        count = _search_kernels.entries_at_most(
-            errors, entry_ids, starts, lengths, np.float32(np.inf), kept_ids, kept_errors
+        count = _search_kernels.keys_at_most(
+            errors, entry_ids, starts, lengths, np.float32(np.inf), keys
         )
-    order = value_id_order(kept_errors[:count], kept_ids[:count])[:k]
-    return kept_ids[order], kept_errors[order]
+    return split_keys(np.sort(keys[:count])[:k])
 
 
 def _smallest_entries(

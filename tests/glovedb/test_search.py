@@ -336,8 +336,9 @@ def test_selection_over_scanned_ranges_equals_selection_over_their_positions(k: 
 
 def test_the_candidates_order_is_error_then_id_as_lexsort_gives():
     """One uint64 key per candidate (the float's bits, then the id) sorts exactly as
-    ``np.lexsort`` on the two keys, for negative, zero, tiny and infinite values."""
-    from glovedb._ordering import value_id_order
+    ``np.lexsort`` on the two keys, for negative, zero, tiny and infinite values, and
+    gives them back."""
+    from glovedb._ordering import order_key, split_keys, value_id_order
 
     rng = np.random.default_rng(5)
     special = np.array([-np.inf, -2.5, -1e-30, -0.0, 0.0, 1e-45, 1.0, 3.25, np.inf], np.float32)
@@ -351,3 +352,8 @@ def test_the_candidates_order_is_error_then_id_as_lexsort_gives():
         ids = rng.permutation(3 * count)[:count]
         expected = np.lexsort((ids, values + np.float32(0.0)))
         np.testing.assert_array_equal(value_id_order(values, ids), expected)
+        # The compiled keys sort the same way and give back their ids and values.
+        keys = np.array([order_key(v, i) for v, i in zip(values, ids, strict=True)], np.uint64)
+        back_ids, back_values = split_keys(np.sort(keys))
+        np.testing.assert_array_equal(back_ids, ids[expected])
+        np.testing.assert_array_equal(back_values, values[expected] + np.float32(0.0))
