@@ -23,8 +23,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     lookup.add_argument("--db", required=True, help="database file (.h5)")
     lookup.add_argument(
         "--cascade",
-        default="8:2000,16:200,64:3",  # glovedb.lookup.DEFAULT_CASCADE, not imported: slow
-        help="e.g. 16:500,64:3 (default: the tracker's, 8:2000,16:200,64:3)",
+        default="8:1500,16:100,64:3",  # glovedb.lookup.DEFAULT_CASCADE, not imported: slow
+        help="e.g. 16:500,64:3 (default: the tracker's, 8:1500,16:100,64:3)",
     )
     lookup.add_argument("--entries", type=int, help="tile the database to this many entries")
     lookup.add_argument("--queries", type=int, default=20, help="number of queries")

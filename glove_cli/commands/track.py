@@ -114,7 +114,7 @@ def add_tracker_options(parser: argparse.ArgumentParser) -> None:
     """Options shared by ``track`` and ``eval``."""
     parser.add_argument(
         "--cascade",
-        help="lookup cascade, e.g. 16:500,64:3 (default: 8:2000,16:200,64:3 on the sizes "
+        help="lookup cascade, e.g. 16:500,64:3 (default: 8:1500,16:100,64:3 on the sizes "
         "the database has)",
     )
     parser.add_argument(

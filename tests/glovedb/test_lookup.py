@@ -72,6 +72,6 @@ def test_default_cascade_fits_the_database_sizes():
     from glovedb.lookup import DEFAULT_CASCADE, default_cascade
 
     assert default_cascade((8, 16, 32, 64)) == DEFAULT_CASCADE
-    assert default_cascade((8, 16, 32)) == "8:2000,16:200,32:3"
-    assert default_cascade((16, 64)) == "16:2000,64:3"
+    assert default_cascade((8, 16, 32)) == "8:1500,16:100,32:3"
+    assert default_cascade((16, 64)) == "16:1500,64:3"
     assert default_cascade((8,)) == "8:3"
