@@ -52,6 +52,52 @@ _BRUTE_FORCE_CHUNK = 65_536
 
 
 @dataclass(frozen=True)
+class PairedCascades:
+    """The benchmark's cascade and another, searched alternately on the same queries.
+
+    Separate runs of one command on a shared virtual machine differ by up to a third
+    in speed; searches that alternate query by query in one process see the same
+    machine. Each query is searched with both cascades, in alternating order, and one
+    core's read of the first stage's data (as :attr:`LookupBenchmark.first_stage_read_ms`)
+    is timed after every tenth query.
+
+    Attributes
+    ----------
+    cascade : str
+        The other cascade (``--against``).
+    latency_ms, own_latency_ms : (Q,) float64
+        Wall time per query of the other cascade and of the benchmark's, in these
+        alternating searches.
+    read_ms : (R,) float64
+        The read reference, measured between the queries.
+    same_top1 : (Q,) bool
+        Whether both cascades return the same top entry (tiled copies count as one).
+    """
+
+    cascade: str
+    latency_ms: NDArray[np.float64]
+    own_latency_ms: NDArray[np.float64]
+    read_ms: NDArray[np.float64]
+    same_top1: NDArray[np.bool_]
+
+    def as_dict(self) -> dict[str, Any]:
+        median, own = float(np.median(self.latency_ms)), float(np.median(self.own_latency_ms))
+        read = float(np.median(self.read_ms))
+        return {
+            "cascade": self.cascade,
+            "median_ms": round(median, 3),
+            "own_median_ms": round(own, 3),
+            "paired_difference_ms_median": round(
+                float(np.median(self.latency_ms - self.own_latency_ms)), 3
+            ),
+            "read_ms_median": round(read, 3),
+            "median_over_read": round(median / read, 2),
+            "own_median_over_read": round(own / read, 2),
+            "same_top1": round(float(np.mean(self.same_top1)), 4),
+        }
+
+
+@dataclass(frozen=True)
 class LookupBenchmark:
     """Figures of one benchmark run (see :meth:`as_dict` for the JSON keys).
 
@@ -69,7 +115,8 @@ class LookupBenchmark:
     open the timed index (file read, first-stage structures built) and the bytes of
     its first-stage structure, ``scanned_images`` the number of images it scans
     (of which a query scans ``probe_share`` in ``lists`` inverted lists when the first
-    stage is ``"lists"``; :mod:`glovedb.inverted_lists`).
+    stage is ``"lists"``; :mod:`glovedb.inverted_lists`). ``against`` holds the
+    searches alternated with another cascade, when one was given.
     """
 
     entries: int
@@ -91,6 +138,7 @@ class LookupBenchmark:
     scanned_images: int = 0
     lists: int = 0
     probe_share: float = 1.0
+    against: PairedCascades | None = None
 
     def as_dict(self) -> dict[str, Any]:
         k = parse_cascade(self.cascade)[-1].k
@@ -130,6 +178,7 @@ class LookupBenchmark:
             "recall_top1_vs_exhaustive": None
             if self.same_top1 is None
             else round(float(np.mean(self.same_top1)), 4),
+            "against": None if self.against is None else self.against.as_dict(),
         }
 
 
@@ -237,6 +286,7 @@ def run_lookup_benchmark(
     exact_errors: NDArray[np.float64] | None = None,
     coarse_maps: CoarseMaps = "cell_mean",
     first_stage: FirstStage = "auto",
+    against: str | None = None,
 ) -> LookupBenchmark:
     """Time held-out lookups and score them against brute force and the exhaustive cascade.
 
@@ -244,10 +294,13 @@ def run_lookup_benchmark(
     :func:`exact_nearest_errors` at the cascade's last size) may be passed in to reuse
     them across runs; by default they are made here. ``coarse_maps`` as in
     :func:`glovedb.search.cascade_search`, ``first_stage`` as in
-    :class:`glovedb.lookup.DatabaseIndex`.
+    :class:`glovedb.lookup.DatabaseIndex`. ``against``: another cascade, timed
+    alternately with ``cascade`` on the same queries (:class:`PairedCascades`).
     """
     with GloveDatabase(database) as checked:  # a bad file or cascade fails before rendering
         parse_cascade(cascade, sizes=checked.resolutions)
+        if against is not None:
+            parse_cascade(against, sizes=checked.resolutions)
     if query_images is None:
         query_images = held_out_queries(queries, seed=seed)
     stages = parse_cascade(cascade)
@@ -265,6 +318,7 @@ def run_lookup_benchmark(
         exhaustive_results, exhaustive_ms = _timed_searches(searcher(exhaustive), query_images)
         packed = exhaustive.packed(stages[0].size)
         first_stage_mb, read_ms = packed.codes.nbytes / 1e6, memory_read_ms(packed.codes)
+        codes_shape, codes_dtype = packed.codes.shape, packed.codes.dtype
         exhaustive_top1 = exhaustive.base_ids(
             np.array([result.entry_ids[0] for result in exhaustive_results])
         )
@@ -281,6 +335,14 @@ def run_lookup_benchmark(
             hits = np.flatnonzero(np.isclose(result.errors, best, rtol=0, atol=1e-5))
             ranks.append(int(hits[0]) + 1 if len(hits) else stages[-1].k + 1)
         top1 = index.base_ids(np.array([result.entry_ids[0] for result in results]))
+        rss_mb, process_rss_mb = _resident_mb() - rss_before, _resident_mb()
+        paired = None
+        if against is not None:
+            reference = np.ones(codes_shape, codes_dtype)  # as large as the first stage
+            paired = _paired_searches(
+                index, query_images, cascade, against, reference,
+                workers=workers, coarse_maps=coarse_maps,
+            )  # fmt: skip
         return LookupBenchmark(
             entries=index.entries,
             base_entries=index.base_entries,
@@ -289,8 +351,8 @@ def run_lookup_benchmark(
             latency_ms=latencies,
             stage_ms=np.array([result.stage_ms for result in results]),
             ranks=np.array(ranks),
-            rss_mb=_resident_mb() - rss_before,
-            process_rss_mb=_resident_mb(),
+            rss_mb=rss_mb,
+            process_rss_mb=process_rss_mb,
             first_stage_mb=first_stage_mb,
             first_stage_read_ms=read_ms,
             first_stage=_first_stage_name(scanned),
@@ -301,6 +363,7 @@ def run_lookup_benchmark(
             scanned_images=_scanned_images(scanned),
             lists=scanned.num_lists if isinstance(scanned, InvertedLists) else 0,
             probe_share=scanned.probe_share if isinstance(scanned, InvertedLists) else 1.0,
+            against=paired,
         )
 
 
@@ -330,6 +393,40 @@ def _timed_searches(
         results.append(search(query))
         latencies.append((time.perf_counter() - started) * 1000.0)
     return results, np.array(latencies)
+
+
+def _paired_searches(
+    index: DatabaseIndex,
+    query_images: list[dict[int, NDArray[np.uint8]]],
+    cascade: str,
+    against: str,
+    reference: NDArray[Any],
+    *,
+    workers: int | None,
+    coarse_maps: CoarseMaps,
+) -> PairedCascades:
+    """Search every query with both cascades, in alternating order, after a warm-up
+    search with each; time ``reference``'s read after every tenth query."""
+    times: dict[str, list[float]] = {cascade: [], against: []}
+    top: dict[str, list[int]] = {cascade: [], against: []}
+    reads = []
+    for name in (cascade, against):
+        index.search(query_images[0], name, workers=workers, coarse_maps=coarse_maps)
+    for number, query in enumerate(query_images):
+        for name in (cascade, against) if number % 2 else (against, cascade):
+            started = time.perf_counter()
+            result = index.search(query, name, workers=workers, coarse_maps=coarse_maps)
+            times[name].append((time.perf_counter() - started) * 1000.0)
+            top[name].append(int(result.entry_ids[0]))
+        if number % 10 == 0:
+            reads.append(memory_read_ms(reference))
+    return PairedCascades(
+        cascade=against,
+        latency_ms=np.array(times[against]),
+        own_latency_ms=np.array(times[cascade]),
+        read_ms=np.array(reads),
+        same_top1=index.base_ids(np.array(top[cascade])) == index.base_ids(np.array(top[against])),
+    )
 
 
 def memory_read_ms(array: NDArray[Any], repeats: int = 5) -> float:

@@ -43,6 +43,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "lists of images like the query's (approximate) (default: auto, distinct images "
         "when they repeat, lists when at least 250,000 images are left to scan)",
     )
+    lookup.add_argument(
+        "--against",
+        metavar="CASCADE",
+        help="also time this cascade, alternating with --cascade query by query in one "
+        "process (separate runs on a shared machine can differ by a third in speed)",
+    )
     lookup.add_argument("--json", action="store_true", help="print one JSON object")
     lookup.set_defaults(run=run_lookup)
     track = kinds.add_parser(
@@ -94,6 +100,7 @@ def run_lookup(args: argparse.Namespace) -> int:
     figures = run_lookup_benchmark(
         args.db, cascade=args.cascade, entries=args.entries, queries=args.queries,
         workers=args.workers, coarse_maps=args.coarse_maps, first_stage=args.first_stage,
+        against=args.against,
     ).as_dict()  # fmt: skip
     if args.json:
         print(json.dumps(figures))
@@ -119,6 +126,13 @@ def run_lookup(args: argparse.Namespace) -> int:
           f"({figures['queries']} queries)")  # fmt: skip
     print(f"  mean rank of NN    {figures['mean_rank_true_nn']:.2f}")
     print(f"  resident memory    {figures['rss_mb']:.0f} MB")
+    if (paired := figures["against"]) is not None:
+        print(f"  against            {paired['cascade']}, the two alternating query by query: "
+              f"median {paired['median_ms']:.2f} against {paired['own_median_ms']:.2f} ms "
+              f"({paired['median_over_read']:.2f} against {paired['own_median_over_read']:.2f}"
+              f" reads of {paired['read_ms_median']:.2f} ms, timed between them), paired "
+              f"difference {paired['paired_difference_ms_median']:+.2f} ms, same top-1 "
+              f"entry {paired['same_top1']:.3f}")  # fmt: skip
     return 0
 
 

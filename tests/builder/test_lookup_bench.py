@@ -79,3 +79,20 @@ def test_bench_lookup_reports_a_first_stage_of_lists(small_database, capsys):
     assert figures["first_stage"] == "lists" and figures["scanned_images"] == 72
     assert 1 < figures["lists"] < 72 and figures["probe_share"] == 0.12
     assert 0.0 <= figures["recall_top1_vs_exhaustive"] <= 1.0
+
+
+def test_bench_lookup_times_another_cascade_alternately(small_database, capsys):
+    from glove_cli.main import main
+
+    argv = ["bench", "lookup", "--db", str(small_database), "--cascade", "8:20,32:3",
+            "--queries", "4", "--against", "8:20,32:3", "--json"]  # fmt: skip
+    assert main(argv) == 0
+    paired = json.loads(capsys.readouterr().out)["against"]
+    assert paired["cascade"] == "8:20,32:3" and paired["same_top1"] == 1.0  # itself
+    assert paired["median_ms"] > 0 and paired["own_median_ms"] > 0 and paired["read_ms_median"] > 0
+    argv[-3:] = ["--against", "8:72,32:3"]  # and printed, not as JSON
+    assert main(argv) == 0
+    assert "against            8:72,32:3, the two alternating" in capsys.readouterr().out
+    argv[-1] = "8:20,48:3"  # no 48 x 48 images in the file
+    assert main(argv) == 2
+    assert "48" in capsys.readouterr().err
