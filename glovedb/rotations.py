@@ -28,9 +28,12 @@ def axis_angle_to_matrix(axis: ArrayLike, angle_rad: ArrayLike) -> NDArray[np.fl
     """
     axis = as_array("axis", axis, (..., 3), np.float64)
     angle = np.asarray(angle_rad, dtype=np.float64)
+    if axis.ndim == 1 and angle.ndim == 0:
+        return _one_axis_angle_to_matrix(axis, angle)
     norm = np.linalg.norm(axis, axis=-1, keepdims=True)
     unit = np.divide(axis, norm, out=np.zeros_like(axis), where=norm > 0)
     x, y, z = np.moveaxis(unit, -1, 0)
+    angle = np.where(norm[..., 0] > 0, angle, 0.0)  # a zero axis turns by nothing
     c, s = np.cos(angle), np.sin(angle)
     shape = np.broadcast_shapes(x.shape, c.shape)
     x, y, z, c, s = (np.broadcast_to(a, shape) for a in (x, y, z, c, s))
@@ -42,6 +45,29 @@ def axis_angle_to_matrix(axis: ArrayLike, angle_rad: ArrayLike) -> NDArray[np.fl
             np.stack([z * x * t - y * s, z * y * t + x * s, c + z * z * t], -1),
         ],
         -2,
+    )
+
+
+def _one_axis_angle_to_matrix(
+    axis: NDArray[np.float64], angle: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """:func:`axis_angle_to_matrix` of one ``(3,)`` axis and a 0-d angle, bit for bit,
+    in scalar arithmetic: the same operations in the same order (the fit turns the
+    hand by one such rotation per solver step, and the broadcasting path's array
+    calls cost 0.19 ms where this costs about 0.01)."""
+    x, y, z = (float(value) for value in axis)
+    norm = float(np.sqrt(x * x + y * y + z * z))
+    if not norm > 0:
+        return np.eye(3)
+    x, y, z = x / norm, y / norm, z / norm
+    c, s = float(np.cos(angle)), float(np.sin(angle))
+    t = 1.0 - c
+    return np.array(
+        [
+            [c + x * x * t, x * y * t - z * s, x * z * t + y * s],
+            [y * x * t + z * s, c + y * y * t, y * z * t - x * s],
+            [z * x * t - y * s, z * y * t + x * s, c + z * z * t],
+        ]
     )
 
 

@@ -131,6 +131,21 @@ def test_rotation_vector_inverts_axis_angle():
         )
 
 
+def test_one_rotation_is_the_batched_formula_bit_for_bit():
+    # One axis and one angle take a scalar path (the fit's solver steps); it must give
+    # exactly what the broadcasting path gives for a batch of one, zero axes included.
+    rng = np.random.default_rng(7)
+    for k in range(2000):
+        axis = rng.normal(size=3) * 10.0 ** rng.uniform(-8, 2) if k % 50 else np.zeros(3)
+        angle = rng.normal() * 3.0
+        one = axis_angle_to_matrix(axis, angle)
+        assert one.shape == (3, 3) and one.dtype == np.float64
+        np.testing.assert_array_equal(one, axis_angle_to_matrix(axis[None], [angle])[0])
+    # A zero axis turns by nothing, whatever the angle (the docstring's promise).
+    np.testing.assert_array_equal(axis_angle_to_matrix([0.0, 0.0, 0.0], 1.0), np.eye(3))
+    np.testing.assert_array_equal(axis_angle_to_matrix(np.zeros((2, 3)), [1.0, 2.0])[1], np.eye(3))
+
+
 def test_database_views_are_pose_for_view_of_every_position_and_roll():
     rotations, translations, rolls = database_views(1, 5, distance_m=0.45, hand_length_m=0.2)
     directions = icosphere(1)
