@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from glovedb.hand_model import N_KEYPOINTS
 from tracker.generative.model import PosedHand
 
 VISIBILITY: tuple[str, ...] = ("seen", "self_occluded", "occluded", "out_of_view")
@@ -60,19 +61,28 @@ def keypoint_visibility(
     v = np.rint(fy * points[:, 1] / points[:, 2] + cy).astype(np.int64)
     inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
     np.minimum.at(buffer, (v[inside] // cell_px, u[inside] // cell_px), points[inside, 2])
-    flags = []
-    for x, y, z in hand.keypoints_m:
-        ku, kv = round(fx * x / z + cx), round(fy * y / z + cy)
-        if z <= 0 or not (0 <= ku < width and 0 <= kv < height):
-            flags.append("out_of_view")
-            continue
-        surface = buffer[kv // cell_px, ku // cell_px]
-        if surface < z - radius_m - margin_m:
-            flags.append("self_occluded")
-            continue
-        window = depth_m[max(kv - 1, 0) : kv + 2, max(ku - 1, 0) : ku + 2]
-        seen = window[window > 0]
-        front = min(surface, z - radius_m)
-        hidden = len(seen) == 0 or float(np.median(seen)) < front - margin_m
-        flags.append("occluded" if hidden else "seen")
-    return tuple(flags)
+    # All 21 keypoints at once; ``np.rint`` rounds half to even as ``round`` does.
+    x, y, z = hand.keypoints_m.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ku, kv = np.rint(fx * x / z + cx), np.rint(fy * y / z + cy)
+    in_view = (z > 0) & (ku >= 0) & (ku < width) & (kv >= 0) & (kv < height)
+    ku = np.where(in_view, ku, 0).astype(np.int64)
+    kv = np.where(in_view, kv, 0).astype(np.int64)
+    surface = buffer[kv // cell_px, ku // cell_px]
+    self_occluded = surface < z - radius_m - margin_m
+    # The observed depth in the 3 x 3 pixels around each keypoint (fewer at the image
+    # border): its median where the sensor measured something.
+    rows = kv[:, None] + np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1])
+    columns = ku[:, None] + np.array([-1, 0, 1, -1, 0, 1, -1, 0, 1])
+    within = (rows >= 0) & (rows < height) & (columns >= 0) & (columns < width)
+    window = depth_m[np.clip(rows, 0, height - 1), np.clip(columns, 0, width - 1)]
+    measured = within & (window > 0)
+    count = measured.sum(axis=1)
+    ordered = np.sort(np.where(measured, window, np.inf), axis=1)
+    low = ordered[np.arange(N_KEYPOINTS), np.maximum(count - 1, 0) // 2]
+    high = ordered[np.arange(N_KEYPOINTS), count // 2]
+    median = np.where(count % 2 == 1, low, (low + high) / 2)  # np.median's, bit for bit
+    front = np.minimum(surface, z - radius_m)
+    hidden = (count == 0) | (median < front - margin_m)
+    flags = np.select([~in_view, self_occluded, hidden], [3, 1, 2], 0)
+    return tuple(VISIBILITY[flag] for flag in flags)
