@@ -417,8 +417,11 @@ def fit_frame_steps(
         else None,
     }
 
-    # The last evaluation: its state, its terms, quality and posed hand, its Jacobian.
-    last: list[tuple[_State, list[Residuals], dict[str, float], PosedHand, NDArray]] = []
+    # The evaluation of least energy so far: its energy, state, terms, quality, posed
+    # hand and Jacobian. The solver keeps exactly the steps that lower the energy, so
+    # this is the evaluation of the state it ends on, also when it refused its last
+    # steps (re-evaluating that state cost a sixth of a frame's fit).
+    best: list[tuple[float, _State, list[Residuals], dict[str, float], PosedHand, NDArray]] = []
 
     def evaluate(state: _State) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         terms, quality, hand = frame_energy(state.samples, state.pose, observation, **kwargs)  # type: ignore[arg-type]
@@ -450,7 +453,9 @@ def fit_frame_steps(
             jacobian = np.block(
                 [[jacobian, by_proportions], [np.zeros((N_PROPORTIONS, N_PARAMS)), pull_rows]]
             )
-        last[:] = [(state, terms, quality, hand, jacobian)]
+        energy = float(residual @ residual)  # as the solver computes it
+        if not best or energy < best[0][0]:
+            best[:] = [(energy, state, terms, quality, hand, jacobian)]
         return residual, jacobian
 
     def advance(state: _State, delta: NDArray[np.float64]) -> _State:
@@ -464,9 +469,10 @@ def fit_frame_steps(
         evaluate, advance, _State(start, samples), iterations=settings.iterations,
         tolerance=settings.tolerance,
     )  # fmt: skip
-    if last[0][0] is not result.state:  # it was evaluated before a refused step
+    if not best or best[0][1] is not result.state:  # not reached: a safety net
+        best.clear()
         evaluate(result.state)
-    _, terms, quality, hand, jacobian = last[0]
+    _, _, terms, quality, hand, jacobian = best[0]
     information_after = (
         eliminated_information(jacobian.T @ jacobian, N_PARAMS, ridge=1e-9)
         if estimate_proportions
