@@ -146,6 +146,30 @@ def test_one_rotation_is_the_batched_formula_bit_for_bit():
     np.testing.assert_array_equal(axis_angle_to_matrix(np.zeros((2, 3)), [1.0, 2.0])[1], np.eye(3))
 
 
+def test_one_matrix_to_quaternion_and_rotation_vector_are_the_batched_ones_bit_for_bit():
+    # One matrix takes a scalar path (the pose filter's); near 0 and near 180 degrees,
+    # and the diagonal rotations whose pivots tie, included.
+    rng = np.random.default_rng(3)
+    for k in range(2000):
+        axis = rng.normal(size=3)
+        angle = (
+            rng.uniform(0, np.pi),
+            np.pi - 10 ** rng.uniform(-12, -1),
+            10 ** rng.uniform(-14, -2),
+        )
+        rotation = (
+            axis_angle_to_matrix(axis, angle[k % 3])
+            if k % 4
+            else np.diag(rng.choice([-1.0, 1.0], 3))
+        )
+        if np.linalg.det(rotation) < 0:
+            rotation = -rotation
+        np.testing.assert_array_equal(
+            matrix_to_quaternion(rotation), matrix_to_quaternion(rotation[None])[0]
+        )
+        np.testing.assert_array_equal(rotation_vector(rotation), rotation_vector(rotation[None])[0])
+
+
 def test_database_views_are_pose_for_view_of_every_position_and_roll():
     rotations, translations, rolls = database_views(1, 5, distance_m=0.45, hand_length_m=0.2)
     directions = icosphere(1)
