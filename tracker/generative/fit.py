@@ -277,8 +277,12 @@ def frame_energy(
     reference: ReferenceBasis | None = None,
     proportions: bool = False,
     proportion_jacobian: NDArray[np.float64] | None = None,
+    hand: PosedHand | None = None,
 ) -> tuple[list[Residuals], dict[str, float], PosedHand]:
     """Every term's residuals at one pose, and the fit's quality measures.
+
+    ``hand``, if given, is the hand already posed at ``pose`` (``samples`` and
+    ``proportion_jacobian`` are then not used to pose it again).
 
     Returns
     -------
@@ -288,7 +292,8 @@ def frame_energy(
     hand : PosedHand
         The hand posed at ``pose``.
     """
-    hand = PosedHand(samples, pose, proportion_jacobian=proportion_jacobian)
+    if hand is None:
+        hand = PosedHand(samples, pose, proportion_jacobian=proportion_jacobian)
     s = settings
     data, matched = data_residuals(
         hand, observation.points_m, observation.labels, weight=s.data_weight,
@@ -416,6 +421,10 @@ def fit_frame_steps(
         if estimate_proportions
         else None,
     }
+    first = _State(start, samples)
+    # The start's evaluation takes the hand posed above, unless it needs the
+    # proportions' derivatives, which that one lacks.
+    posed_start = None if estimate_proportions else start_hand
 
     # The evaluation of least energy so far: its energy, state, terms, quality, posed
     # hand and Jacobian. The solver keeps exactly the steps that lower the energy, so
@@ -424,7 +433,10 @@ def fit_frame_steps(
     best: list[tuple[float, _State, list[Residuals], dict[str, float], PosedHand, NDArray]] = []
 
     def evaluate(state: _State) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        terms, quality, hand = frame_energy(state.samples, state.pose, observation, **kwargs)  # type: ignore[arg-type]
+        terms, quality, hand = frame_energy(
+            state.samples, state.pose, observation,
+            hand=posed_start if state is first else None, **kwargs,  # type: ignore[arg-type]
+        )  # fmt: skip
         if kwargs["reference"] is None and settings.reference_weight > 0:
             observed = [t for t in terms if t.name in (DATA, SILHOUETTE)]
             basis = reference_basis(
@@ -466,7 +478,7 @@ def fit_frame_steps(
         return _State(pose, state.samples.with_proportions(HandProportions.from_vector(factors)))
 
     result = yield from levenberg_marquardt_steps(
-        evaluate, advance, _State(start, samples), iterations=settings.iterations,
+        evaluate, advance, first, iterations=settings.iterations,
         tolerance=settings.tolerance,
     )  # fmt: skip
     if not best or best[0][1] is not result.state:  # not reached: a safety net
