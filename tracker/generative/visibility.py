@@ -17,7 +17,6 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from glovedb.hand_model import N_KEYPOINTS
 from tracker.generative.model import PosedHand
 
 VISIBILITY: tuple[str, ...] = ("seen", "self_occluded", "occluded", "out_of_view")
@@ -79,8 +78,8 @@ def keypoint_visibility(
     measured = within & (window > 0)
     count = measured.sum(axis=1)
     ordered = np.sort(np.where(measured, window, np.inf), axis=1)
-    low = ordered[np.arange(N_KEYPOINTS), np.maximum(count - 1, 0) // 2]
-    high = ordered[np.arange(N_KEYPOINTS), count // 2]
+    low = np.take_along_axis(ordered, (np.maximum(count - 1, 0) // 2)[:, None], 1)[:, 0]
+    high = np.take_along_axis(ordered, (count // 2)[:, None], 1)[:, 0]
     median = np.where(count % 2 == 1, low, (low + high) / 2)  # np.median's, bit for bit
     front = np.minimum(surface, z - radius_m)
     hidden = (count == 0) | (median < front - margin_m)
