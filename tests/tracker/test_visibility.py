@@ -70,3 +70,50 @@ def test_an_object_in_front_and_the_image_border(samples):
         "occluded",
         "out_of_view",
     }
+
+
+def _visibility_reference(hand, depth, pinhole, *, radius_m=0.012, margin_m=0.012, cell_px=4):
+    """The straightforward test of the module docstring, keypoint by keypoint."""
+    fx, fy, cx, cy = pinhole
+    points = hand.points_m[hand.facing & (hand.points_m[:, 2] > 1e-3)]
+    buffer = np.full((-(-depth.shape[0] // cell_px), -(-depth.shape[1] // cell_px)), np.inf)
+    u = np.rint(fx * points[:, 0] / points[:, 2] + cx).astype(int)
+    v = np.rint(fy * points[:, 1] / points[:, 2] + cy).astype(int)
+    inside = (u >= 0) & (u < depth.shape[1]) & (v >= 0) & (v < depth.shape[0])
+    np.minimum.at(buffer, (v[inside] // cell_px, u[inside] // cell_px), points[inside, 2])
+    flags = []
+    for x, y, z in hand.keypoints_m:
+        ku, kv = round(fx * x / z + cx), round(fy * y / z + cy)
+        if z <= 0 or not (0 <= ku < depth.shape[1] and 0 <= kv < depth.shape[0]):
+            flags.append("out_of_view")
+            continue
+        surface = buffer[kv // cell_px, ku // cell_px]
+        if surface < z - radius_m - margin_m:
+            flags.append("self_occluded")
+            continue
+        window = depth[max(kv - 1, 0) : kv + 2, max(ku - 1, 0) : ku + 2]
+        seen = window[window > 0]
+        front = min(surface, z - radius_m)
+        hidden = len(seen) == 0 or float(np.median(seen)) < front - margin_m
+        flags.append("occluded" if hidden else "seen")
+    return tuple(flags)
+
+
+def test_the_compiled_pass_gives_the_straightforward_flags(samples):
+    # Hands moved about the image (to its borders and out of it), depth with holes and
+    # an even number of measured pixels around many keypoints, in float32 and float64.
+    rng = np.random.default_rng(11)
+    kinds = set()
+    for trial in range(40):
+        posture = named_posture(("open", "fist", "pinch")[trial % 3])
+        rotation = (BACK_TO_CAMERA, PALM_TO_CAMERA)[trial % 2]
+        position = [rng.uniform(-0.3, 0.3), rng.uniform(-0.25, 0.25), rng.uniform(0.3, 0.9)]
+        hand = PosedHand(samples, HandPose.of(posture, rotation, position))
+        depth = _seen_depth(hand)
+        depth[rng.random(depth.shape) < 0.3] = 0.0
+        depth[rng.random(depth.shape) < 0.05] = 0.2  # something in front here and there
+        for image in (depth, depth.astype(np.float64)):
+            flags = keypoint_visibility(hand, image, KINECT_V1.pinhole)
+            assert flags == _visibility_reference(hand, image, KINECT_V1.pinhole)
+            kinds.update(flags)
+    assert kinds == {"seen", "self_occluded", "occluded", "out_of_view"}

@@ -1,7 +1,7 @@
-"""Compiled loops of :mod:`tracker.generative.model`, :mod:`.observation` and the
-data, silhouette and collision terms (:mod:`tracker.generative.energy`), which
-document and check them. They assume checked, C-contiguous inputs of the documented
-dtypes and release the GIL."""
+"""Compiled loops of :mod:`tracker.generative.model`, :mod:`.observation`,
+:mod:`.visibility` and the data, silhouette and collision terms
+(:mod:`tracker.generative.energy`), which document and check them. They assume
+checked, C-contiguous inputs of the documented dtypes and release the GIL."""
 
 from __future__ import annotations
 
@@ -537,3 +537,68 @@ def proportion_differences(
                 for j in range(3):
                     total += rotation[i, j] * (hand[vector, j] - hand[0, j])
                 out[sample, i, vector - 1] = total / step
+
+
+@numba.njit(nogil=True, cache=True)
+def keypoint_flags(
+    points: NDArray[np.float64],
+    facing: NDArray[np.bool_],
+    keypoints: NDArray[np.float64],
+    depth: NDArray[np.float32],
+    pinhole: NDArray[np.float64],
+    radius: float,
+    margin: float,
+    cell: int,
+    flags: NDArray[np.int8],
+) -> None:
+    """The visibility of each of ``keypoints (K, 3)`` as an index into
+    :data:`tracker.generative.visibility.VISIBILITY` into ``flags (K,)``, from the
+    camera-facing ``points (S, 3)`` splatted into cells of ``cell`` pixels and the
+    observed ``depth (H, W)``; ``pinhole`` is fx, fy, cx, cy: see
+    :func:`tracker.generative.visibility.keypoint_visibility`."""
+    fx, fy, cx, cy = pinhole[0], pinhole[1], pinhole[2], pinhole[3]
+    height, width = depth.shape
+    buffer = np.full((-(-height // cell), -(-width // cell)), np.inf)
+    for s in range(points.shape[0]):
+        z = points[s, 2]
+        if not (facing[s] and z > 1e-3):
+            continue
+        u = np.rint(fx * points[s, 0] / z + cx)
+        v = np.rint(fy * points[s, 1] / z + cy)
+        if 0 <= u < width and 0 <= v < height:
+            row, column = int(v) // cell, int(u) // cell
+            buffer[row, column] = min(buffer[row, column], z)
+    window = np.empty(9, depth.dtype)
+    for k in range(keypoints.shape[0]):
+        x, y, z = keypoints[k, 0], keypoints[k, 1], keypoints[k, 2]
+        if not z > 0:
+            flags[k] = 3  # out of view
+            continue
+        u = np.rint(fx * x / z + cx)
+        v = np.rint(fy * y / z + cy)
+        if not (0 <= u < width and 0 <= v < height):
+            flags[k] = 3
+            continue
+        ku, kv = int(u), int(v)
+        surface = buffer[kv // cell, ku // cell]
+        if surface < z - radius - margin:
+            flags[k] = 1  # self-occluded
+            continue
+        count = 0
+        for row in range(max(kv - 1, 0), min(kv + 2, height)):
+            for column in range(max(ku - 1, 0), min(ku + 2, width)):
+                if depth[row, column] > 0:
+                    window[count] = depth[row, column]
+                    count += 1
+        if count == 0:
+            flags[k] = 2  # occluded: nothing measured there
+            continue
+        seen = np.sort(window[:count])
+        half = count // 2
+        # NumPy's median: the middle value, or the mean of the two middle ones in the
+        # depth's own type.
+        median = (
+            seen[half] if count % 2 == 1 else (seen[half - 1] + seen[half]) / seen.dtype.type(2)
+        )
+        front = min(surface, z - radius)
+        flags[k] = 2 if median < front - margin else 0

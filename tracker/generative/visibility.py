@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from tracker.generative import _kernels
 from tracker.generative.model import PosedHand
 
 VISIBILITY: tuple[str, ...] = ("seen", "self_occluded", "occluded", "out_of_view")
@@ -51,37 +52,12 @@ def keypoint_visibility(
     tuple of str
         21 entries of :data:`VISIBILITY`.
     """
-    fx, fy, cx, cy = (float(value) for value in np.asarray(pinhole).reshape(4))
-    height, width = depth_m.shape
-    points = hand.points_m[hand.facing & (hand.points_m[:, 2] > 1e-3)]
-    cells = (-(-height // cell_px), -(-width // cell_px))
-    buffer = np.full(cells, np.inf)
-    u = np.rint(fx * points[:, 0] / points[:, 2] + cx).astype(np.int64)
-    v = np.rint(fy * points[:, 1] / points[:, 2] + cy).astype(np.int64)
-    inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
-    np.minimum.at(buffer, (v[inside] // cell_px, u[inside] // cell_px), points[inside, 2])
-    # All 21 keypoints at once; ``np.rint`` rounds half to even as ``round`` does.
-    x, y, z = hand.keypoints_m.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ku, kv = np.rint(fx * x / z + cx), np.rint(fy * y / z + cy)
-    in_view = (z > 0) & (ku >= 0) & (ku < width) & (kv >= 0) & (kv < height)
-    ku = np.where(in_view, ku, 0).astype(np.int64)
-    kv = np.where(in_view, kv, 0).astype(np.int64)
-    surface = buffer[kv // cell_px, ku // cell_px]
-    self_occluded = surface < z - radius_m - margin_m
-    # The observed depth in the 3 x 3 pixels around each keypoint (fewer at the image
-    # border): its median where the sensor measured something.
-    rows = kv[:, None] + np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1])
-    columns = ku[:, None] + np.array([-1, 0, 1, -1, 0, 1, -1, 0, 1])
-    within = (rows >= 0) & (rows < height) & (columns >= 0) & (columns < width)
-    window = depth_m[np.clip(rows, 0, height - 1), np.clip(columns, 0, width - 1)]
-    measured = within & (window > 0)
-    count = measured.sum(axis=1)
-    ordered = np.sort(np.where(measured, window, np.inf), axis=1)
-    low = np.take_along_axis(ordered, (np.maximum(count - 1, 0) // 2)[:, None], 1)[:, 0]
-    high = np.take_along_axis(ordered, (count // 2)[:, None], 1)[:, 0]
-    median = np.where(count % 2 == 1, low, (low + high) / 2)  # np.median's, bit for bit
-    front = np.minimum(surface, z - radius_m)
-    hidden = (count == 0) | (median < front - margin_m)
-    flags = np.select([~in_view, self_occluded, hidden], [3, 1, 2], 0)
+    camera = np.asarray(pinhole, dtype=np.float64).reshape(4)
+    flags = np.empty(len(hand.keypoints_m), np.int8)
+    # One compiled pass (0.04 ms; 1.0 ms as a loop with a median per keypoint).
+    _kernels.keypoint_flags(
+        hand.points_m, hand.facing, np.ascontiguousarray(hand.keypoints_m, dtype=np.float64),
+        np.ascontiguousarray(depth_m), camera, float(radius_m), float(margin_m), int(cell_px),
+        flags,
+    )  # fmt: skip
     return tuple(VISIBILITY[flag] for flag in flags)
