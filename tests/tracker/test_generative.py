@@ -20,7 +20,7 @@ from glovedb.postures import named_posture
 from glovedb.proportions import HandProportions, proportioned_mesh
 from glovedb.rotations import axis_angle_to_matrix, geodesic_angle
 from tracker.generative.energy.collision import collision_residuals
-from tracker.generative.energy.data import data_residuals
+from tracker.generative.energy.data import data_residuals, partners
 from tracker.generative.energy.fingertips import fingertip_residuals
 from tracker.generative.energy.limits import limit_residuals
 from tracker.generative.energy.prior import prior_residuals
@@ -293,6 +293,18 @@ def test_a_finger_the_data_does_not_see_is_held(samples):
     without_thumb = replace(without_points, depth_m=depth)
     unseen = unseen_fingers(hand, without_thumb, share=share, **pairing)
     assert unseen.tolist() == [True] * 4 + [False] * 16
+    # The fit pairs the start's points once for this test and its data term: the same
+    # answers either way.
+    points, labels = without_thumb.points_m, without_thumb.labels
+    found = partners(hand, points, labels, gate_m=0.03, depth_scale=0.5)
+    given = unseen_fingers(hand, without_thumb, share=share, nearest=found, **pairing)
+    assert given.tolist() == unseen.tolist()
+    term = {"weight": 1000.0, "huber_m": 0.01, "gate_m": 0.03, "depth_scale": 0.5}
+    paired_here, matched_here = data_residuals(hand, points, labels, **term)
+    paired_before, matched_before = data_residuals(hand, points, labels, nearest=found, **term)
+    np.testing.assert_array_equal(paired_here.values, paired_before.values)
+    np.testing.assert_array_equal(paired_here.jacobian, paired_before.jacobian)
+    assert matched_here == matched_before > 0.5
     start_posture = truth.posture_rad.copy()
     start_posture[JOINT_NAMES.index("thumb_cmc_abd")] += np.radians(15.0)
     start = HandPose(start_posture, truth.rotation, truth.translation_m)

@@ -31,7 +31,7 @@ from glovedb.posture_prior import PosturePrior
 from glovedb.proportions import FACTOR_RANGE, N_PROPORTIONS, HandProportions
 from tracker.generative.energy.collision import collision_residuals
 from tracker.generative.energy.data import NAME as DATA
-from tracker.generative.energy.data import data_residuals
+from tracker.generative.energy.data import data_residuals, partners
 from tracker.generative.energy.fingertips import fingertip_residuals
 from tracker.generative.energy.limits import limit_residuals
 from tracker.generative.energy.prior import prior_residuals
@@ -278,11 +278,14 @@ def frame_energy(
     proportions: bool = False,
     proportion_jacobian: NDArray[np.float64] | None = None,
     hand: PosedHand | None = None,
+    partners_at_pose: NDArray[np.int64] | None = None,
 ) -> tuple[list[Residuals], dict[str, float], PosedHand]:
     """Every term's residuals at one pose, and the fit's quality measures.
 
     ``hand``, if given, is the hand already posed at ``pose`` (``samples`` and
-    ``proportion_jacobian`` are then not used to pose it again).
+    ``proportion_jacobian`` are then not used to pose it again);
+    ``partners_at_pose`` the data term's pairing there, if already found
+    (:func:`tracker.generative.energy.data.partners`).
 
     Returns
     -------
@@ -298,7 +301,7 @@ def frame_energy(
     data, matched = data_residuals(
         hand, observation.points_m, observation.labels, weight=s.data_weight,
         huber_m=s.data_huber_m, gate_m=s.data_gate_m, depth_scale=s.data_depth_scale,
-        proportions=proportions,
+        proportions=proportions, nearest=partners_at_pose,
     )  # fmt: skip
     silhouette, outside = silhouette_residuals(
         hand, observation, weight=s.silhouette_weight, margin_px=s.silhouette_margin_px,
@@ -402,11 +405,16 @@ def fit_frame_steps(
         margin_px=settings.silhouette_margin_px + HIDDEN_EDGE_PX,
         depth_margin_m=settings.depth_margin_m,
     )
+    start_partners = None  # the data term's pairing at the start, when needed twice
     if hold_unseen and settings.unseen_finger_share > 0:
+        start_partners = partners(
+            start_hand, observation.points_m, observation.labels,
+            gate_m=settings.data_gate_m, depth_scale=settings.data_depth_scale,
+        )  # fmt: skip
         hidden |= unseen_fingers(
             start_hand, observation, share=settings.unseen_finger_share,
             gate_m=settings.data_gate_m, depth_scale=settings.data_depth_scale,
-            depth_margin_m=settings.depth_margin_m,
+            depth_margin_m=settings.depth_margin_m, nearest=start_partners,
         )  # fmt: skip
     kwargs = {
         "settings": settings,
@@ -433,9 +441,10 @@ def fit_frame_steps(
     best: list[tuple[float, _State, list[Residuals], dict[str, float], PosedHand, NDArray]] = []
 
     def evaluate(state: _State) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        at_start = state is first
         terms, quality, hand = frame_energy(
-            state.samples, state.pose, observation,
-            hand=posed_start if state is first else None, **kwargs,  # type: ignore[arg-type]
+            state.samples, state.pose, observation, hand=posed_start if at_start else None,
+            partners_at_pose=start_partners if at_start else None, **kwargs,  # type: ignore[arg-type]
         )  # fmt: skip
         if kwargs["reference"] is None and settings.reference_weight > 0:
             observed = [t for t in terms if t.name in (DATA, SILHOUETTE)]

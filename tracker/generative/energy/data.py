@@ -116,6 +116,22 @@ def _pair(
     return distance, nearest
 
 
+def partners(
+    hand: PosedHand,
+    observed_m: NDArray[np.float64],
+    observed_labels: NDArray[np.uint8],
+    *,
+    gate_m: float,
+    depth_scale: float = 1.0,
+) -> NDArray[np.int64]:
+    """``(N,)`` the sample each observed point pairs with in the data term: the nearest
+    camera-facing sample of its class (:func:`nearest_of_class`), -1 for none."""
+    return _pair(
+        observed_m, observed_labels, hand.points_m, hand.samples.labels, hand.facing, gate_m,
+        depth_scale,
+    )[1]  # fmt: skip
+
+
 def data_residuals(
     hand: PosedHand,
     observed_m: NDArray[np.float64],
@@ -126,6 +142,7 @@ def data_residuals(
     gate_m: float,
     depth_scale: float = 1.0,
     proportions: bool = False,
+    nearest: NDArray[np.int64] | None = None,
 ) -> tuple[Residuals, float]:
     """Point-to-plane residuals of the observed points against the posed model.
 
@@ -148,6 +165,8 @@ def data_residuals(
         1 pairs by plain 3D distance.
     proportions : bool
         Also give the derivatives by the hand proportions.
+    nearest : (N,) int64, optional
+        :func:`partners` of this hand and these points, when already found.
 
     Returns
     -------
@@ -157,10 +176,10 @@ def data_residuals(
     """
     if len(observed_m) == 0 or not hand.facing.any():
         return Residuals.empty(NAME, proportions=proportions), 0.0
-    _, nearest = _pair(
-        observed_m, observed_labels, hand.points_m, hand.samples.labels, hand.facing, gate_m,
-        depth_scale,
-    )  # fmt: skip
+    if nearest is None:
+        nearest = partners(
+            hand, observed_m, observed_labels, gate_m=gate_m, depth_scale=depth_scale
+        )
     kept = np.flatnonzero(nearest >= 0)
     matched = len(kept) / len(observed_m)
     if len(kept) == 0:

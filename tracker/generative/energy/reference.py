@@ -46,7 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from glovedb.hand_model import N_BONES, N_JOINTS
-from tracker.generative.energy.data import nearest_of_class
+from tracker.generative.energy.data import partners
 from tracker.generative.energy.residuals import Residuals
 from tracker.generative.model import MOVES, N_PARAMS, PosedHand
 from tracker.generative.observation import CropLookup, Observation, look_up
@@ -118,6 +118,7 @@ def unseen_fingers(
     gate_m: float,
     depth_scale: float,
     depth_margin_m: float,
+    nearest: NDArray[np.int64] | None = None,
 ) -> NDArray[np.bool_]:
     """``(20,)``: the joints of the fingers the camera does not see at the pose of
     ``hand`` because something is in front of them: fewer observed glove points pair
@@ -138,11 +139,15 @@ def unseen_fingers(
     gate_m, depth_scale, depth_margin_m : float
         The data term's pairing and the silhouette term's depth margin
         (:class:`tracker.generative.fit.FitSettings`).
+    nearest : (N,) int64, optional
+        The observed points' partners at this pose
+        (:func:`tracker.generative.energy.data.partners`), when already found.
     """
-    _, nearest = nearest_of_class(
-        observation.points_m, observation.labels, hand.points_m, hand.samples.labels,
-        gate_m=gate_m, depth_scale=depth_scale, candidates=hand.facing,
-    )  # fmt: skip
+    if nearest is None:
+        nearest = partners(
+            hand, observation.points_m, observation.labels, gate_m=gate_m,
+            depth_scale=depth_scale,
+        )  # fmt: skip
     facing, _, covered = _behind_observed_depth(hand, observation, depth_margin_m)
     bone = hand.samples.mesh.dominant_bone
 
