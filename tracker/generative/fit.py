@@ -490,9 +490,7 @@ def fit_frame_steps(
         evaluate, advance, first, iterations=settings.iterations,
         tolerance=settings.tolerance,
     )  # fmt: skip
-    if not best or best[0][1] is not result.state:  # not reached: a safety net
-        best.clear()
-        evaluate(result.state)
+    assert best and best[0][1] is result.state  # the solver ends on its least energy
     _, _, terms, quality, hand, jacobian = best[0]
     information_after = (
         eliminated_information(jacobian.T @ jacobian, N_PARAMS, ridge=1e-9)
