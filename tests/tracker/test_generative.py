@@ -374,12 +374,17 @@ def test_prior_is_the_gaussian_of_its_examples():
         fit_posture_prior(examples, floor_deg=0)
 
 
+def _rosenbrock(x):
+    """Rosenbrock as residuals (1 - x, 10 (y - x^2)), minimum at (1, 1), and their
+    Jacobian."""
+    residual = np.array([1 - x[0], 10 * (x[1] - x[0] ** 2)])
+    return residual, np.array([[-1.0, 0.0], [-20 * x[0], 10.0]])
+
+
 def test_solver_minimises_a_known_least_squares_problem():
-    # Rosenbrock as residuals (1 - x, 10 (y - x^2)): minimum at (1, 1).
     def evaluate(x):
-        return np.array([1 - x[0], 10 * (x[1] - x[0] ** 2)]), np.array(
-            [[-1.0, 0.0], [-20 * x[0], 10.0]]
-        )
+        residual, jacobian = _rosenbrock(x)
+        return residual, lambda: jacobian
 
     result = run_to_end(
         levenberg_marquardt_steps(
@@ -388,6 +393,41 @@ def test_solver_minimises_a_known_least_squares_problem():
     )
     np.testing.assert_allclose(result.state, [1.0, 1.0], atol=1e-4)
     assert result.energy < 1e-8 < result.start_energy
+
+
+@pytest.mark.parametrize("iterations", [1, 2, 5, 100])
+def test_solver_asks_for_the_jacobian_only_where_it_linearises(iterations):
+    evaluated, linearised = [], []
+
+    def evaluate(x):
+        residual, jacobian = _rosenbrock(x)
+        evaluated.append((x, float(residual @ residual)))
+
+        def jacobian_at_x():
+            linearised.append(x)
+            return jacobian
+
+        return residual, jacobian_at_x
+
+    result = run_to_end(
+        levenberg_marquardt_steps(
+            evaluate, lambda x, d: x + d, np.array([-1.2, 1.0]), iterations=iterations
+        )
+    )
+    # The kept states: the start and every evaluation that lowered the energy.
+    kept, lowest = [], np.inf
+    for x, energy in evaluated:
+        if energy < lowest:
+            kept.append(x)
+            lowest = energy
+    assert result.state is kept[-1]
+    # Each kept state is linearised once, in order, but the last where the solver
+    # stopped right after keeping it (its evaluation was the last); refused ones never.
+    ended_on_a_kept_step = evaluated[-1][0] is kept[-1]
+    assert len(linearised) == len(kept) - ended_on_a_kept_step
+    assert all(a is b for a, b in zip(linearised, kept, strict=False))
+    if iterations == 100:
+        assert len(evaluated) > len(kept)  # the solver refused steps on the way
 
 
 def test_fit_recovers_a_perturbed_pose_and_posture(samples):

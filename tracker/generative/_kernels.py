@@ -143,6 +143,34 @@ def directional_vertex_rows(
 
 
 @numba.njit(nogil=True, cache=True)
+def _plane_distance(
+    point: NDArray[np.float64], target: NDArray[np.float64], normal: NDArray[np.float64]
+) -> float:
+    """``(point - target) . normal`` for ``(3,)`` vectors, summed in a fixed order."""
+    return (
+        (point[0] - target[0]) * normal[0]
+        + (point[1] - target[1]) * normal[1]
+        + (point[2] - target[2]) * normal[2]
+    )
+
+
+@numba.njit(nogil=True, cache=True)
+def plane_distances(
+    ids: NDArray[np.int64],
+    targets: NDArray[np.float64],
+    points: NDArray[np.float64],
+    normals: NDArray[np.float64],
+    distance: NDArray[np.float64],
+) -> None:
+    """Distances ``(p_s - target) . n_s`` ``(P,)`` into ``distance`` for samples
+    ``ids`` of all samples' camera-frame ``points`` and ``normals (S, 3)``: the
+    first output of :func:`plane_rows`, to the bit."""
+    for row in range(ids.shape[0]):
+        s = ids[row]
+        distance[row] = _plane_distance(points[s], targets[row], normals[s])
+
+
+@numba.njit(nogil=True, cache=True)
 def plane_rows(
     ids: NDArray[np.int64],
     targets: NDArray[np.float64],
@@ -168,11 +196,7 @@ def plane_rows(
     first = np.full(points.shape[0], -1, dtype=np.int64)
     for row in range(ids.shape[0]):
         s = ids[row]
-        distance[row] = (
-            (points[s, 0] - targets[row, 0]) * normals[s, 0]
-            + (points[s, 1] - targets[row, 1]) * normals[s, 1]
-            + (points[s, 2] - targets[row, 2]) * normals[s, 2]
-        )
+        distance[row] = _plane_distance(points[s], targets[row], normals[s])
         if first[s] >= 0:
             out[row] = out[first[s]]
             continue

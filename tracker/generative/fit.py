@@ -21,8 +21,9 @@ length and its flexion explain the same points, and fitting both drifts the leng
 
 from __future__ import annotations
 
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
+from functools import cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -51,6 +52,7 @@ from tracker.generative.energy.temporal import temporal_residuals
 from tracker.generative.model import N_PARAMS, HandPose, HandSamples, PosedHand
 from tracker.generative.observation import Observation
 from tracker.generative.solver import (
+    Evaluation,
     eliminated_information,
     in_one_call,
     levenberg_marquardt_steps,
@@ -435,12 +437,12 @@ def fit_frame_steps(
     posed_start = None if estimate_proportions else start_hand
 
     # The evaluation of least energy so far: its energy, state, terms, quality, posed
-    # hand and Jacobian. The solver keeps exactly the steps that lower the energy, so
-    # this is the evaluation of the state it ends on, also when it refused its last
-    # steps (re-evaluating that state cost a sixth of a frame's fit).
-    best: list[tuple[float, _State, list[Residuals], dict[str, float], PosedHand, NDArray]] = []
+    # hand and Jacobian (a function). The solver keeps exactly the steps that lower the
+    # energy, so this is the evaluation of the state it ends on, also when it refused
+    # its last steps (re-evaluating that state cost a sixth of a frame's fit).
+    best: list[tuple[float, _State, list[Residuals], dict[str, float], PosedHand, Callable]] = []
 
-    def evaluate(state: _State) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def evaluate(state: _State) -> Evaluation:
         at_start = state is first
         terms, quality, hand = frame_energy(
             state.samples, state.pose, observation, hand=posed_start if at_start else None,
@@ -458,8 +460,15 @@ def fit_frame_steps(
             scale_rad = np.radians(settings.reference_scale_deg)
             terms.append(reference_residuals(hand, basis, scale_rad=scale_rad))
         residual = np.concatenate([t.values for t in terms])
-        jacobian = np.concatenate([t.jacobian for t in terms])
         if estimate_proportions:
+            pull = pull_rows @ (state.samples.proportions.as_vector() - anchor)
+            residual = np.concatenate([residual, pull])
+
+        @cache
+        def jacobian() -> NDArray[np.float64]:
+            by_pose = np.concatenate([t.jacobian for t in terms])
+            if not estimate_proportions:
+                return by_pose
             by_proportions = np.concatenate(
                 [
                     t.proportion_jacobian
@@ -469,11 +478,10 @@ def fit_frame_steps(
                 ]
             )
             by_proportions[:, 1:6] *= extended
-            pull = pull_rows @ (state.samples.proportions.as_vector() - anchor)
-            residual = np.concatenate([residual, pull])
-            jacobian = np.block(
-                [[jacobian, by_proportions], [np.zeros((N_PROPORTIONS, N_PARAMS)), pull_rows]]
+            return np.block(
+                [[by_pose, by_proportions], [np.zeros((N_PROPORTIONS, N_PARAMS)), pull_rows]]
             )
+
         energy = float(residual @ residual)  # as the solver computes it
         if not best or energy < best[0][0]:
             best[:] = [(energy, state, terms, quality, hand, jacobian)]
@@ -491,12 +499,11 @@ def fit_frame_steps(
         tolerance=settings.tolerance,
     )  # fmt: skip
     assert best and best[0][1] is result.state  # the solver ends on its least energy
-    _, _, terms, quality, hand, jacobian = best[0]
-    information_after = (
-        eliminated_information(jacobian.T @ jacobian, N_PARAMS, ridge=1e-9)
-        if estimate_proportions
-        else None
-    )
+    _, _, terms, quality, hand, jacobian_at_end = best[0]
+    information_after = None
+    if estimate_proportions:
+        jacobian = jacobian_at_end()
+        information_after = eliminated_information(jacobian.T @ jacobian, N_PARAMS, ridge=1e-9)
     return FrameFit(
         pose=result.state.pose,
         hand=hand,

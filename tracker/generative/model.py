@@ -350,6 +350,23 @@ class PosedHand:
         )  # fmt: skip
         return rows
 
+    def plane_distances(self, sample_ids: ArrayLike, targets_m: ArrayLike) -> NDArray[np.float64]:
+        """``(P,)`` distances ``(p_s - q) . n_s`` of points to the tangent planes of
+        samples, positive where the point lies behind the plane: :meth:`plane_rows`'s
+        first output, to the bit, without the rows.
+
+        Parameters
+        ----------
+        sample_ids : (P,) int
+        targets_m : (P, 3) float
+            Camera frame.
+        """
+        ids = np.ascontiguousarray(sample_ids, dtype=np.int64)
+        targets = np.ascontiguousarray(targets_m, dtype=np.float64)
+        distance = np.empty(len(ids))
+        _kernels.plane_distances(ids, targets, self.points_m, self.normals, distance)
+        return distance
+
     def plane_rows(
         self, sample_ids: ArrayLike, targets_m: ArrayLike
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -1,15 +1,17 @@
 """Levenberg-Marquardt for the generative fit's sum of squares.
 
 The problem is given by two functions: ``evaluate(state)`` returns the stacked
-residuals ``r (M,)`` and their Jacobian ``J (M, K)`` at a state, ``advance(state,
-delta)`` applies a step ``delta (K,)``. Each iteration solves::
+residuals ``r (M,)`` at a state and a function that gives their Jacobian ``J (M, K)``
+there, ``advance(state, delta)`` applies a step ``delta (K,)``. Each iteration solves::
 
     (J^T J + lambda * (diag(J^T J) + eps)) delta = -J^T r
 
 and keeps the step only if the energy ``r^T r`` at the new state (residuals and
 correspondences evaluated afresh) is lower; lambda shrinks after a kept step and
 grows after a refused one (Marquardt's scaling makes it unit-free). A refused step
-costs one evaluation, a kept one is the next iteration's linearisation.
+costs one evaluation of the residuals, a kept one is the next iteration's
+linearisation: the Jacobian is asked for only there, not at refused steps nor at the
+state the solver ends on.
 
 :func:`levenberg_marquardt_steps` is the solver as a generator that yields after each
 iteration, so that a caller can spread one solve over several calls (the tracker's
@@ -29,7 +31,8 @@ from numpy.typing import NDArray
 State = TypeVar("State")
 Result = TypeVar("Result")
 Params = ParamSpec("Params")
-Evaluation = tuple[NDArray[np.float64], NDArray[np.float64]]
+Evaluation = tuple[NDArray[np.float64], Callable[[], NDArray[np.float64]]]
+"""The residuals ``r (M,)`` at a state and the function that gives their ``J (M, K)``."""
 
 _EPS = 1e-9
 _SHRINK, _GROW = 0.3, 5.0
@@ -74,7 +77,8 @@ def levenberg_marquardt_steps(
     Parameters
     ----------
     evaluate : callable
-        ``state -> (r (M,), J (M, K))``.
+        ``state -> (r (M,), jacobian)``, ``jacobian() -> J (M, K)`` (called at most
+        once per evaluation, only where the solver linearises).
     advance : callable
         ``(state, delta (K,)) -> state``.
     start : State
@@ -91,18 +95,23 @@ def levenberg_marquardt_steps(
         What the generator returns.
     """
     state = start
-    residual, jacobian = evaluate(state)
+    residual, jacobian_at_state = evaluate(state)
     energy = start_energy = float(residual @ residual)
     converged = False
     done = 0
+    normal = gradient = np.zeros(0)
+    linearised = False  # normal and gradient are the state's
     for iteration in range(1, iterations + 1):
         if iteration > 1:
             yield
         done = iteration
         if len(residual) == 0:
             break
-        normal = jacobian.T @ jacobian
-        gradient = jacobian.T @ residual
+        if not linearised:
+            jacobian = jacobian_at_state()
+            normal = jacobian.T @ jacobian
+            gradient = jacobian.T @ residual
+            linearised = True
         damped = normal + damping * (np.diag(np.diag(normal)) + _EPS * np.eye(len(normal)))
         try:
             delta = np.asarray(-np.linalg.solve(damped, gradient), dtype=np.float64)
@@ -114,7 +123,8 @@ def levenberg_marquardt_steps(
         new_energy = float(new_residual @ new_residual)
         if new_energy < energy:
             converged = energy - new_energy < tolerance * energy
-            state, residual, jacobian, energy = candidate, new_residual, new_jacobian, new_energy
+            state, residual, energy = candidate, new_residual, new_energy
+            jacobian_at_state, linearised = new_jacobian, False
             damping *= _SHRINK
             if converged:
                 break

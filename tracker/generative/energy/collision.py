@@ -25,7 +25,7 @@ from glovedb._validate import as_array
 from glovedb.capsules import CapsuleSet, finger_capsules
 from glovedb.hand_model import N_JOINTS, Skeleton, forward_kinematics, make_skeleton
 from tracker.generative import _kernels
-from tracker.generative.energy.residuals import Residuals
+from tracker.generative.energy.residuals import Derivatives, Residuals
 from tracker.generative.model import PosedHand
 
 NAME = "collision"
@@ -116,10 +116,13 @@ def collision_residuals(hand: PosedHand, *, weight: float, tolerance_m: float = 
     hit = np.flatnonzero(overlap > tolerance_m)
     if len(hit) == 0:
         return Residuals.empty(NAME)
-    first, second = pairs[hit, 0], pairs[hit, 1]
-    away = pa[hit] - pb[hit]
-    away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-12)
-    ja = hand.bone_point_jacobian(pa[hit], capsules.bone[first])
-    jb = hand.bone_point_jacobian(pb[hit], capsules.bone[second])
-    jacobian = -weight * np.einsum("pi,pik->pk", away, ja - jb)
-    return Residuals(NAME, weight * (overlap[hit] - tolerance_m), jacobian)
+
+    def derivatives() -> Derivatives:
+        first, second = pairs[hit, 0], pairs[hit, 1]
+        away = pa[hit] - pb[hit]
+        away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-12)
+        ja = hand.bone_point_jacobian(pa[hit], capsules.bone[first])
+        jb = hand.bone_point_jacobian(pb[hit], capsules.bone[second])
+        return -weight * np.einsum("pi,pik->pk", away, ja - jb), None
+
+    return Residuals.deferred(NAME, weight * (overlap[hit] - tolerance_m), derivatives)

@@ -13,7 +13,9 @@ hand's estimated size shrinks (1.2 % under Kinect-like noise, with 0.3 mm more
 position error). The residual is the point's distance to the
 sample's tangent plane (point-to-plane, Tzionas et al. 2014 found it better than
 point-to-point), under a Huber loss so that a few wrong colors or flying pixels do not
-drag the hand; the distances and their Jacobian rows come from one compiled pass
+drag the hand; the distances come from one compiled pass
+(:meth:`tracker.generative.model.PosedHand.plane_distances`), their Jacobian rows,
+when the solver asks for them, from another
 (:meth:`tracker.generative.model.PosedHand.plane_rows`). Its share of the observed
 points that found a partner is the fit's main quality signal
 (:func:`tracker.generative.fit.FrameFit`).
@@ -26,7 +28,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from glovedb._validate import as_array
 from tracker.generative import _kernels
-from tracker.generative.energy.residuals import Residuals, huber_weights, project_rows
+from tracker.generative.energy.residuals import (
+    Derivatives,
+    Residuals,
+    huber_weights,
+    project_rows,
+)
 from tracker.generative.model import PosedHand
 
 NAME = "data"
@@ -185,12 +192,15 @@ def data_residuals(
     if len(kept) == 0:
         return Residuals.empty(NAME, proportions=proportions), matched
     sample = nearest[kept]
-    raw, plane_rows = hand.plane_rows(sample, observed_m[kept])
+    targets = observed_m[kept]
+    raw = hand.plane_distances(sample, targets)
     rows = weight / np.sqrt(len(observed_m)) * huber_weights(raw, huber_m)
-    jacobian = rows[:, None] * plane_rows
-    by_proportions = None
-    if proportions:
-        by_proportions = rows[:, None] * project_rows(
-            hand.proportion_jacobian(sample), hand.normals[sample]
-        )
-    return Residuals(NAME, rows * raw, jacobian, by_proportions), matched
+
+    def derivatives() -> Derivatives:
+        jacobian = rows[:, None] * hand.plane_rows(sample, targets)[1]
+        if not proportions:
+            return jacobian, None
+        by_proportions = project_rows(hand.proportion_jacobian(sample), hand.normals[sample])
+        return jacobian, rows[:, None] * by_proportions
+
+    return Residuals.deferred(NAME, rows * raw, derivatives), matched

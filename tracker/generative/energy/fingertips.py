@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from glovedb.hand_model import FINGERTIP_KEYPOINTS
-from tracker.generative.energy.residuals import Residuals
+from tracker.generative.energy.residuals import Derivatives, Residuals
 from tracker.generative.model import PosedHand
 
 NAME = "fingertips"
@@ -64,5 +64,8 @@ def fingertip_residuals(
     tips = np.asarray(FINGERTIP_KEYPOINTS)[named]
     raw = (hand.keypoints_m[tips] - targets_m[named]).reshape(-1)
     rows = weight * deadband_weights(raw, deadband_m)
-    jacobian = rows[:, None] * hand.keypoint_jacobian(tips).reshape(len(raw), -1)
-    return Residuals(NAME, rows * raw, jacobian)
+
+    def derivatives() -> Derivatives:
+        return rows[:, None] * hand.keypoint_jacobian(tips).reshape(len(raw), -1), None
+
+    return Residuals.deferred(NAME, rows * raw, derivatives)

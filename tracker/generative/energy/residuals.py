@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -10,10 +10,24 @@ from numpy.typing import NDArray
 from glovedb.proportions import N_PROPORTIONS
 from tracker.generative.model import N_PARAMS
 
+Derivatives = tuple[NDArray[np.float64], NDArray[np.float64] | None]
+"""A term's ``jacobian (M, 26)`` and ``proportion_jacobian (M, 7)`` or None."""
 
-@dataclass(frozen=True)
+
 class Residuals:
     """Weighted residuals of one energy term and their derivatives.
+
+    The derivatives may be given, or computed when first asked for
+    (:meth:`deferred`): the solver needs them only at the states it linearises at,
+    not at a step it refuses nor at the state it ends on, and a fit's terms spend
+    about as long on their Jacobians as on their values.
+
+    Parameters
+    ----------
+    name : str
+    values : (M,) float64
+    jacobian : (M, 26) float64
+    proportion_jacobian : (M, 7) float64, optional
 
     Attributes
     ----------
@@ -26,10 +40,42 @@ class Residuals:
         By the hand proportions, where the term depends on them and they were asked for.
     """
 
-    name: str
-    values: NDArray[np.float64]
-    jacobian: NDArray[np.float64]
-    proportion_jacobian: NDArray[np.float64] | None = None
+    __slots__ = ("_derivatives", "_derive", "name", "values")
+
+    def __init__(
+        self,
+        name: str,
+        values: NDArray[np.float64],
+        jacobian: NDArray[np.float64],
+        proportion_jacobian: NDArray[np.float64] | None = None,
+    ) -> None:
+        self.name = name
+        self.values = values
+        self._derivatives: Derivatives | None = (jacobian, proportion_jacobian)
+        self._derive: Callable[[], Derivatives] | None = None
+
+    @classmethod
+    def deferred(
+        cls, name: str, values: NDArray[np.float64], derive: Callable[[], Derivatives]
+    ) -> Residuals:
+        """Residuals whose derivatives ``derive()`` computes on first use (once)."""
+        residuals = cls(name, values, np.zeros((0, N_PARAMS)))
+        residuals._derivatives, residuals._derive = None, derive
+        return residuals
+
+    def _computed(self) -> Derivatives:
+        if self._derivatives is None:
+            assert self._derive is not None
+            self._derivatives, self._derive = self._derive(), None
+        return self._derivatives
+
+    @property
+    def jacobian(self) -> NDArray[np.float64]:
+        return self._computed()[0]
+
+    @property
+    def proportion_jacobian(self) -> NDArray[np.float64] | None:
+        return self._computed()[1]
 
     @property
     def energy(self) -> float:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from tracker.generative import _kernels
-from tracker.generative.energy.residuals import Residuals, project_rows
+from tracker.generative.energy.residuals import Derivatives, Residuals, project_rows
 from tracker.generative.model import PosedHand
 from tracker.generative.observation import Observation
 
@@ -87,8 +87,12 @@ def silhouette_residuals(
         return Residuals.empty(NAME, proportions=proportions), outside_share
     scale = weight / np.sqrt(count)
     samples = chosen[index]
-    jacobian = scale * hand.directional_rows(samples, direction[index])
-    by_proportions = None
-    if proportions:
-        by_proportions = scale * project_rows(hand.proportion_jacobian(samples), direction[index])
-    return Residuals(NAME, scale * value[index], jacobian, by_proportions), outside_share
+    along = direction[index]
+
+    def derivatives() -> Derivatives:
+        jacobian = scale * hand.directional_rows(samples, along)
+        if not proportions:
+            return jacobian, None
+        return jacobian, scale * project_rows(hand.proportion_jacobian(samples), along)
+
+    return Residuals.deferred(NAME, scale * value[index], derivatives), outside_share

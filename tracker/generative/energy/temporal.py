@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from glovedb.hand_model import N_KEYPOINTS
-from tracker.generative.energy.residuals import Residuals
+from tracker.generative.energy.residuals import Derivatives, Residuals
 from tracker.generative.model import PosedHand
 
 NAME = "temporal"
@@ -38,5 +38,8 @@ def temporal_residuals(
     moved = hand.keypoints_m - previous_keypoints_m
     robust = 1.0 / np.sqrt(1.0 + np.sum(moved**2, axis=1) / scale_m**2)
     rows = (weight / np.sqrt(N_KEYPOINTS) * robust).repeat(3)
-    jacobian = rows[:, None] * hand.keypoint_jacobian(_ALL).reshape(3 * N_KEYPOINTS, -1)
-    return Residuals(NAME, rows * moved.reshape(-1), jacobian)
+
+    def derivatives() -> Derivatives:
+        return rows[:, None] * hand.keypoint_jacobian(_ALL).reshape(3 * N_KEYPOINTS, -1), None
+
+    return Residuals.deferred(NAME, rows * moved.reshape(-1), derivatives)
