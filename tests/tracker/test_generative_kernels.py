@@ -15,7 +15,7 @@ from glovedb.mesh import make_hand_mesh, skin, skinning_matrices
 from glovedb.pattern import load_pattern, split_by_label
 from glovedb.posture_prior import load_posture_prior
 from glovedb.postures import named_posture
-from tracker.generative.energy.collision import collision_residuals, segment_closest_points
+from tracker.generative.energy.collision import _model_pairs, segment_closest_points
 from tracker.generative.energy.data import data_residuals, nearest_of_class
 from tracker.generative.energy.residuals import huber_weights, project_rows
 from tracker.generative.energy.silhouette import silhouette_residuals
@@ -144,6 +144,37 @@ def _reference_silhouette(hand, observation, *, weight, margin_px, depth_margin_
     scale = weight / np.sqrt(len(chosen))
     jacobian = project_rows(_reference_vertex_jacobian(hand, chosen[index]), direction)
     return scale * values, scale * jacobian, float(np.mean(off_mask | off_crop)), len(pull)
+
+
+def _reference_collision(hand, *, weight, tolerance_m=0.002):
+    """The collision term with its capsules posed in the camera frame by NumPy, as it
+    was written before its compiled pass (which poses them in the hand frame)."""
+    pairs = _model_pairs()
+    capsules = hand.samples.finger_capsules
+    R, t = hand.pose.rotation, hand.pose.translation_m
+    camera_T_bone = hand.bone_transforms.copy()
+    camera_T_bone[:, :3, :3] = R @ camera_T_bone[:, :3, :3]
+    camera_T_bone[:, :3, 3] = camera_T_bone[:, :3, 3] @ R.T + t
+    m = camera_T_bone[capsules.bone]
+    start = np.einsum("cij,cj->ci", m[:, :3, :3], capsules.start_m) + m[:, :3, 3]
+    end = np.einsum("cij,cj->ci", m[:, :3, :3], capsules.end_m) + m[:, :3, 3]
+    a, b = pairs[:, 0], pairs[:, 1]
+    s, u = _reference_segment_parameters(start[a], end[a], start[b], end[b])
+    pa = start[a] + s[:, None] * (end[a] - start[a])
+    pb = start[b] + u[:, None] * (end[b] - start[b])
+    radius = capsules.radius_start_m, capsules.radius_end_m
+    overlap = (
+        radius[0][a] + s * (radius[1][a] - radius[0][a])
+        + radius[0][b] + u * (radius[1][b] - radius[0][b])
+        - np.linalg.norm(pa - pb, axis=1)
+    )  # fmt: skip
+    hit = np.flatnonzero(overlap > tolerance_m)
+    away = pa[hit] - pb[hit]
+    away /= np.linalg.norm(away, axis=1, keepdims=True)
+    ja = hand.bone_point_jacobian(pa[hit], capsules.bone[a[hit]])
+    jb = hand.bone_point_jacobian(pb[hit], capsules.bone[b[hit]])
+    jacobian = -weight * np.einsum("pi,pik->pk", away, ja - jb)
+    return weight * (overlap[hit] - tolerance_m), jacobian
 
 
 def _reference_segment_parameters(a0, a1, b0, b1):
@@ -360,6 +391,6 @@ def test_frame_energy_terms_match_the_references(samples):
     np.testing.assert_allclose(by_name["silhouette"].jacobian, jacobian, atol=1e-9)
     collision = by_name["collision"]
     assert len(collision) > 0, "the crossed fingers must collide"
-    assert collision.values == pytest.approx(
-        collision_residuals(hand, weight=settings.collision_weight).values
-    )
+    values, jacobian = _reference_collision(hand, weight=settings.collision_weight)
+    np.testing.assert_allclose(collision.values, values, atol=1e-12)
+    np.testing.assert_allclose(collision.jacobian, jacobian, atol=1e-9)

@@ -350,8 +350,10 @@ def segment_parameters(
 
 @numba.njit(nogil=True, cache=True)
 def capsule_overlaps(
-    start: NDArray[np.float64],
-    end: NDArray[np.float64],
+    transforms: NDArray[np.float64],
+    bone: NDArray[np.int64],
+    start_m: NDArray[np.float64],
+    end_m: NDArray[np.float64],
     radius_start: NDArray[np.float64],
     radius_end: NDArray[np.float64],
     first: NDArray[np.int64],
@@ -361,8 +363,19 @@ def capsule_overlaps(
     second_point: NDArray[np.float64],
 ) -> None:
     """Overlap ``(Q,)`` of capsule pairs ``first, second`` (sum of radii minus
-    distance at the closest points of their axes) and those points ``(Q, 3)``, from
-    posed axis end points ``(C, 3)``: see :mod:`tracker.generative.energy.collision`."""
+    distance at the closest points of their axes) and those points ``(Q, 3)``, for
+    capsules on bones ``bone (C,)`` with axis end points ``start_m, end_m (C, 3)`` in
+    their bone's frame, posed by ``transforms (16, 4, 4)`` (the points are in the frame
+    these map into): see :mod:`tracker.generative.energy.collision`."""
+    count = bone.shape[0]
+    start, end = np.empty((count, 3)), np.empty((count, 3))
+    for c in range(count):
+        m = transforms[bone[c]]
+        sx, sy, sz = start_m[c, 0], start_m[c, 1], start_m[c, 2]
+        ex, ey, ez = end_m[c, 0], end_m[c, 1], end_m[c, 2]
+        for i in range(3):
+            start[c, i] = m[i, 0] * sx + m[i, 1] * sy + m[i, 2] * sz + m[i, 3]
+            end[c, i] = m[i, 0] * ex + m[i, 1] * ey + m[i, 2] * ez + m[i, 3]
     for q in range(first.shape[0]):
         a, b = first[q], second[q]
         s, t = _segment_parameters(start[a], end[a], start[b], end[b])

@@ -58,14 +58,6 @@ def segment_closest_points(
     return s, t
 
 
-def _posed(capsules: CapsuleSet, transforms: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
-    """Capsule axis end points in the frame ``transforms (16, 4, 4)`` map into."""
-    m = transforms[capsules.bone]
-    start = np.einsum("cij,cj->ci", m[:, :3, :3], capsules.start_m) + m[:, :3, 3]
-    end = np.einsum("cij,cj->ci", m[:, :3, :3], capsules.end_m) + m[:, :3, 3]
-    return start, end
-
-
 def _pairs(skeleton: Skeleton) -> NDArray[np.int64]:
     """``(Q, 2)`` capsule pairs on different fingers that do not overlap at rest."""
     capsules = finger_capsules(skeleton)
@@ -82,14 +74,14 @@ def _pairs(skeleton: Skeleton) -> NDArray[np.int64]:
 def _overlaps(
     capsules: CapsuleSet, transforms: NDArray, first: NDArray, second: NDArray
 ) -> tuple[NDArray, NDArray, NDArray]:
-    """Overlaps ``(Q,)`` of the capsule pairs ``first, second`` posed by ``transforms``
-    and the closest points of their axes ``(Q, 3)`` each."""
-    start, end = _posed(capsules, transforms)
+    """Overlaps ``(Q,)`` of the capsule pairs ``first, second`` posed by ``transforms
+    (16, 4, 4)`` and the closest points of their axes ``(Q, 3)`` each, in the frame the
+    transforms map into."""
     overlap = np.empty(len(first))
     pa, pb = np.empty((len(first), 3)), np.empty((len(first), 3))
     _kernels.capsule_overlaps(
-        start, end, np.ascontiguousarray(capsules.radius_start_m),
-        np.ascontiguousarray(capsules.radius_end_m),
+        np.ascontiguousarray(transforms, dtype=np.float64), capsules.bone, capsules.start_m,
+        capsules.end_m, capsules.radius_start_m, capsules.radius_end_m,
         np.ascontiguousarray(first, dtype=np.int64), np.ascontiguousarray(second, dtype=np.int64),
         overlap, pa, pb,
     )  # fmt: skip
@@ -108,21 +100,20 @@ def collision_residuals(hand: PosedHand, *, weight: float, tolerance_m: float = 
     fingers that overlap by more than ``tolerance_m``."""
     pairs = _model_pairs()
     capsules = hand.samples.finger_capsules
-    R, t = hand.pose.rotation, hand.pose.translation_m
-    camera_T_bone = hand.bone_transforms.copy()
-    camera_T_bone[:, :3, :3] = R @ camera_T_bone[:, :3, :3]
-    camera_T_bone[:, :3, 3] = camera_T_bone[:, :3, 3] @ R.T + t
-    overlap, pa, pb = _overlaps(capsules, camera_T_bone, pairs[:, 0], pairs[:, 1])
+    # Overlaps do not change with the hand's rigid pose: found in the hand frame.
+    overlap, pa, pb = _overlaps(capsules, hand.bone_transforms, pairs[:, 0], pairs[:, 1])
     hit = np.flatnonzero(overlap > tolerance_m)
     if len(hit) == 0:
         return Residuals.empty(NAME)
 
     def derivatives() -> Derivatives:
         first, second = pairs[hit, 0], pairs[hit, 1]
-        away = pa[hit] - pb[hit]
+        R, t = hand.pose.rotation, hand.pose.translation_m
+        point_a, point_b = pa[hit] @ R.T + t, pb[hit] @ R.T + t  # camera frame
+        away = point_a - point_b
         away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-12)
-        ja = hand.bone_point_jacobian(pa[hit], capsules.bone[first])
-        jb = hand.bone_point_jacobian(pb[hit], capsules.bone[second])
+        ja = hand.bone_point_jacobian(point_a, capsules.bone[first])
+        jb = hand.bone_point_jacobian(point_b, capsules.bone[second])
         return -weight * np.einsum("pi,pik->pk", away, ja - jb), None
 
     return Residuals.deferred(NAME, weight * (overlap[hit] - tolerance_m), derivatives)
