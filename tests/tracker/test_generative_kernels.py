@@ -254,6 +254,19 @@ def test_nearest_of_class_checks_its_inputs():
         nearest_of_class(points, labels, points, labels, gate_m=0.1, candidates=[True])
 
 
+def test_bone_lists_hold_every_non_zero_weight_in_bone_order(samples):
+    bones, weights = samples._bone_lists
+    dense = np.zeros((len(samples), N_BONES))
+    rows = np.repeat(np.arange(len(samples)), bones.shape[1]).reshape(bones.shape)
+    used = bones >= 0
+    dense[rows[used], bones[used]] = weights[used]
+    np.testing.assert_array_equal(dense, samples._weights)
+    both = used[:, 1:] & used[:, :-1]
+    assert np.all(np.diff(bones, axis=1)[both] > 0)  # ascending
+    assert np.all(used[:, :-1] >= used[:, 1:])  # the padding last
+    assert np.all(weights[~used] == 0) and used[:, 0].all()
+
+
 def test_posed_hand_matches_plain_skinning(samples):
     pose = _pose("power")
     hand = PosedHand(samples, pose)

@@ -12,7 +12,8 @@ from numpy.typing import NDArray
 
 @numba.njit(nogil=True, cache=True)
 def pose_samples(
-    weights: NDArray[np.float64],
+    bones: NDArray[np.int64],
+    bone_weights: NDArray[np.float64],
     rest: NDArray[np.float64],
     rest_normals: NDArray[np.float64],
     skinning: NDArray[np.float64],
@@ -23,17 +24,20 @@ def pose_samples(
     facing: NDArray[np.bool_],
 ) -> None:
     """Skin ``(S, 3)`` samples and their normals, map them into the camera frame and
-    mark those facing it, into ``points``, ``normals`` (unit) and ``facing``: see
-    :class:`tracker.generative.model.PosedHand`."""
+    mark those facing it, into ``points``, ``normals`` (unit) and ``facing``; each
+    sample blends the skinning matrices of its ``bones (S, B)`` (-1 padded) by
+    ``bone_weights (S, B)``: see :class:`tracker.generative.model.PosedHand`."""
     blend = np.empty((3, 4))  # the sample's blended skinning matrix
     for s in range(rest.shape[0]):
         blend[:] = 0.0
-        for bone in range(skinning.shape[0]):
-            w = weights[s, bone]
-            if w != 0.0:
-                for i in range(3):
-                    for j in range(4):
-                        blend[i, j] += w * skinning[bone, i, j]
+        for k in range(bones.shape[1]):
+            bone = bones[s, k]
+            if bone < 0:
+                break
+            w = bone_weights[s, k]
+            for i in range(3):
+                for j in range(4):
+                    blend[i, j] += w * skinning[bone, i, j]
         for i in range(3):
             hand = blend[i, 0] * rest[s, 0] + blend[i, 1] * rest[s, 1] + blend[i, 2] * rest[s, 2]
             normal = (
@@ -59,7 +63,8 @@ def _directional_row(
     sample: int,
     point: NDArray[np.float64],
     direction: NDArray[np.float64],
-    weights: NDArray[np.float64],
+    bones: NDArray[np.int64],
+    bone_weights: NDArray[np.float64],
     rest: NDArray[np.float64],
     skinning: NDArray[np.float64],
     movers: NDArray[np.int64],
@@ -71,8 +76,9 @@ def _directional_row(
     out: NDArray[np.float64],
 ) -> None:
     """The ``(26,)`` row ``direction . dp/dx`` of one sample at camera-frame ``point``
-    into ``out``; ``movers (16, K)`` lists the joint angles that move each bone (-1
-    padded), ``arm`` is ``(20, 3)`` scratch."""
+    into ``out``; ``bones, bone_weights (S, B)`` are the samples' skinning bones (-1
+    padded) and weights, ``movers (16, K)`` lists the joint angles that move each bone
+    (-1 padded), ``arm`` is ``(20, 3)`` scratch."""
     nx, ny, nz = direction[0], direction[1], direction[2]
     dx = point[0] - translation[0]
     dy = point[1] - translation[1]
@@ -87,10 +93,11 @@ def _directional_row(
     hz = rotation[0, 2] * nx + rotation[1, 2] * ny + rotation[2, 2] * nz
     arm[:] = 0.0
     moved = 0  # bit j: angle j moves one of the sample's bones
-    for bone in range(movers.shape[0]):
-        w = weights[sample, bone]
-        if w == 0.0:
-            continue
+    for b in range(bones.shape[1]):
+        bone = bones[sample, b]
+        if bone < 0:
+            break
+        w = bone_weights[sample, b]
         m = skinning[bone]
         x, y, z = rest[sample, 0], rest[sample, 1], rest[sample, 2]
         vx = m[0, 0] * x + m[0, 1] * y + m[0, 2] * z + m[0, 3]
@@ -119,7 +126,8 @@ def _directional_row(
 @numba.njit(nogil=True, cache=True)
 def directional_vertex_rows(
     ids: NDArray[np.int64],
-    weights: NDArray[np.float64],
+    bones: NDArray[np.int64],
+    bone_weights: NDArray[np.float64],
     rest: NDArray[np.float64],
     skinning: NDArray[np.float64],
     movers: NDArray[np.int64],
@@ -137,8 +145,8 @@ def directional_vertex_rows(
     arm = np.zeros((axes.shape[0], 3))
     for row in range(ids.shape[0]):
         _directional_row(
-            ids[row], points[row], directions[row], weights, rest, skinning, movers, axes,
-            pivots, rotation, translation, arm, out[row],
+            ids[row], points[row], directions[row], bones, bone_weights, rest, skinning,
+            movers, axes, pivots, rotation, translation, arm, out[row],
         )  # fmt: skip
 
 
@@ -174,7 +182,8 @@ def plane_distances(
 def plane_rows(
     ids: NDArray[np.int64],
     targets: NDArray[np.float64],
-    weights: NDArray[np.float64],
+    bones: NDArray[np.int64],
+    bone_weights: NDArray[np.float64],
     rest: NDArray[np.float64],
     skinning: NDArray[np.float64],
     movers: NDArray[np.int64],
@@ -202,8 +211,8 @@ def plane_rows(
             continue
         first[s] = row
         _directional_row(
-            s, points[s], normals[s], weights, rest, skinning, movers, axes, pivots, rotation,
-            translation, arm, out[row],
+            s, points[s], normals[s], bones, bone_weights, rest, skinning, movers, axes,
+            pivots, rotation, translation, arm, out[row],
         )  # fmt: skip
 
 

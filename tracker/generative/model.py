@@ -209,6 +209,21 @@ class HandSamples:
         return np.ascontiguousarray(self.mesh.weights, dtype=np.float64)
 
     @cached_property
+    def _bone_lists(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """Each sample's bones of non-zero weight, ascending, and those weights, as
+        ``(S, B)`` arrays (``B`` the most bones of one sample; -1 and 0 pad): the
+        compiled passes blend over these instead of testing all 16 weights (0.145 ->
+        0.107 ms to pose the 3,771 samples of the default mesh, the same sums)."""
+        weights = self._weights
+        used = weights != 0.0
+        width = max(int(used.sum(axis=1).max(initial=0)), 1)
+        # A stable sort puts each row's used bones first, in ascending order.
+        order = np.argsort(~used, axis=1, kind="stable")[:, :width]
+        kept = np.take_along_axis(used, order, axis=1)
+        bones = np.where(kept, order, -1).astype(np.int64)
+        return bones, np.where(kept, np.take_along_axis(weights, order, axis=1), 0.0)
+
+    @cached_property
     def model_rest_inverse(self) -> NDArray[np.float64]:
         """``(16, 4, 4)`` inverse bone transforms at rest of the model's skeleton."""
         rest = forward_kinematics(np.zeros(N_JOINTS), self.model.skeleton).bone_transforms[0]
@@ -291,7 +306,7 @@ class PosedHand:
         world = kinematics.bone_transforms[0]  # (16, 4, 4) hand_T_bone
         self.bone_transforms = world
         self._skinning = np.ascontiguousarray((world @ samples._rest_inverse)[:, :3, :])
-        self._weights = samples._weights
+        self._bones, self._bone_weights = samples._bone_lists
         self._rest = np.ascontiguousarray(samples.mesh.rest_vertices_m, dtype=np.float64)
         self._rotation = np.ascontiguousarray(R, dtype=np.float64)
         count = len(samples)
@@ -299,9 +314,10 @@ class PosedHand:
         self.normals = np.empty((count, 3))
         self.facing = np.empty(count, dtype=bool)
         _kernels.pose_samples(
-            self._weights, self._rest, np.ascontiguousarray(samples.rest_normals, dtype=np.float64),
-            self._skinning, self._rotation, np.ascontiguousarray(t, dtype=np.float64),
-            self.points_m, self.normals, self.facing,
+            self._bones, self._bone_weights, self._rest,
+            np.ascontiguousarray(samples.rest_normals, dtype=np.float64), self._skinning,
+            self._rotation, np.ascontiguousarray(t, dtype=np.float64), self.points_m,
+            self.normals, self.facing,
         )  # fmt: skip
         self.keypoints_m = kinematics.keypoints_m[0] @ R.T + t
         self._hand_keypoints = kinematics.keypoints_m[0]
@@ -317,7 +333,7 @@ class PosedHand:
     def vertex_jacobian(self, sample_ids: ArrayLike) -> NDArray[np.float64]:
         """``(P, 3, 26)`` derivatives of samples (camera frame) by the 26 unknowns."""
         ids = np.asarray(sample_ids, dtype=np.int64)
-        weights = self._weights[ids]
+        weights = self.samples._weights[ids]
         rest = self.samples.mesh.rest_vertices_m[ids]
         # Every sample as each of its bones alone would move it (hand frame).
         linear = self._skinning[..., :3].reshape(N_BONES * 3, 3)
@@ -344,8 +360,8 @@ class PosedHand:
         along = np.ascontiguousarray(directions, dtype=np.float64)
         rows = np.empty((len(ids), N_PARAMS))
         _kernels.directional_vertex_rows(
-            ids, self._weights, self._rest, self._skinning, MOVERS, self._axes_hand,
-            self._pivots_hand, self._rotation, self.pose.translation_m,
+            ids, self._bones, self._bone_weights, self._rest, self._skinning, MOVERS,
+            self._axes_hand, self._pivots_hand, self._rotation, self.pose.translation_m,
             np.ascontiguousarray(self.points_m[ids]), along, rows,
         )  # fmt: skip
         return rows
@@ -394,7 +410,8 @@ class PosedHand:
         distance = np.empty(len(ids))
         rows = np.empty((len(ids), N_PARAMS))
         _kernels.plane_rows(
-            ids, targets, self._weights, self._rest, self._skinning, MOVERS, self._axes_hand,
+            ids, targets, self._bones, self._bone_weights, self._rest, self._skinning, MOVERS,
+            self._axes_hand,
             self._pivots_hand, self._rotation, self.pose.translation_m, self.points_m,
             self.normals, distance, rows,
         )  # fmt: skip
