@@ -430,33 +430,6 @@ def test_solver_asks_for_the_jacobian_only_where_it_linearises(iterations):
         assert len(evaluated) > len(kept)  # the solver refused steps on the way
 
 
-def test_solver_stops_at_a_refused_step_from_the_given_iteration():
-    start = np.array([-1.2, 1.0])
-    energies = []
-
-    def counted(x):
-        residual, jacobian = _rosenbrock(x)
-        energies.append(float(residual @ residual))
-        return residual, lambda: jacobian
-
-    whole = run_to_end(
-        levenberg_marquardt_steps(counted, lambda x, d: x + d, start, iterations=100)
-    )
-    lowest = np.minimum.accumulate(energies)
-    first_refused = 1 + int(np.flatnonzero(np.diff(lowest) == 0)[0])  # its iteration
-    energies.clear()
-    stopped = run_to_end(
-        levenberg_marquardt_steps(
-            counted, lambda x, d: x + d, start, iterations=100,
-            stop_on_refusal_from=first_refused,
-        )
-    )  # fmt: skip
-    # The same steps up to the first refusal, then no more.
-    assert stopped.iterations == first_refused < whole.iterations
-    assert len(energies) == first_refused + 1
-    assert energies[-1] >= energies[-2] and stopped.energy == min(energies)
-
-
 def test_fit_recovers_a_perturbed_pose_and_posture(samples):
     truth = _pose("pinch")
     observation = _observation(samples, truth)

@@ -85,8 +85,6 @@ class FitSettings:
         a warm fit takes 6.7 ms instead of 8.4.
     tolerance : float
         A kept step that lowers the energy by less than this share ends the solve.
-    stop_on_refusal_from : int
-        A step refused at this iteration or a later one ends the solve (0: never).
     max_points : int
         Observed glove points used by the data term.
     sample_spacing : int
@@ -171,7 +169,6 @@ class FitSettings:
 
     iterations: int = 4
     tolerance: float = 1e-3
-    stop_on_refusal_from: int = 0
     max_points: int = 1500
     sample_spacing: int = 2
     data_weight: float = 1000.0
@@ -499,7 +496,7 @@ def fit_frame_steps(
 
     result = yield from levenberg_marquardt_steps(
         evaluate, advance, first, iterations=settings.iterations,
-        tolerance=settings.tolerance, stop_on_refusal_from=settings.stop_on_refusal_from or None,
+        tolerance=settings.tolerance,
     )  # fmt: skip
     assert best and best[0][1] is result.state  # the solver ends on its least energy
     _, _, terms, quality, hand, jacobian_at_end = best[0]

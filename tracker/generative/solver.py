@@ -70,7 +70,6 @@ def levenberg_marquardt_steps(
     iterations: int,
     damping: float = 1e-3,
     tolerance: float = 1e-4,
-    stop_on_refusal_from: int | None = None,
 ) -> Generator[None, None, SolverResult[State]]:
     """Minimise ``r(state)^T r(state)`` (module docstring), yielding after every
     iteration but the last.
@@ -89,9 +88,6 @@ def levenberg_marquardt_steps(
         Initial lambda.
     tolerance : float
         Relative energy change under which a kept step ends the iterations.
-    stop_on_refusal_from : int, optional
-        A step refused at this iteration (1 is the first) or a later one ends the
-        iterations; None tries again with more damping until ``iterations``.
 
     Returns
     -------
@@ -134,8 +130,6 @@ def levenberg_marquardt_steps(
                 break
         else:
             damping *= _GROW
-            if stop_on_refusal_from is not None and iteration >= stop_on_refusal_from:
-                break
     return SolverResult(state, energy, start_energy, done, converged)
 
 
