@@ -36,6 +36,7 @@ from tracker.generative.energy.temporal import temporal_residuals
 from tracker.generative.fit import FitSettings, fit_frame, fit_frame_steps
 from tracker.generative.model import (
     _PROPORTION_STEP,
+    _SHAPE_FREE,
     KEYPOINT_BONES,
     N_PARAMS,
     HandPose,
@@ -379,6 +380,19 @@ def _rosenbrock(x):
     Jacobian."""
     residual = np.array([1 - x[0], 10 * (x[1] - x[0] ** 2)])
     return residual, np.array([[-1.0, 0.0], [-20 * x[0], 10.0]])
+
+
+def test_samples_with_proportions_carry_what_the_proportions_do_not_change(samples):
+    computed = {name: getattr(samples, name) for name in _SHAPE_FREE}
+    stretched = samples.with_proportions(HandProportions(1.05, (1.1, 1.0, 0.95, 1.0, 1.2), 1.1))
+    fresh = replace(stretched)  # the same samples, nothing cached
+    for name, value in computed.items():
+        assert stretched.__dict__[name] is value  # carried, not computed again
+        for carried, recomputed in zip(
+            np.atleast_1d(value), np.atleast_1d(getattr(fresh, name)), strict=True
+        ):
+            np.testing.assert_array_equal(carried, recomputed)
+    assert not np.array_equal(stretched._rest_inverse, samples._rest_inverse)
 
 
 def test_solver_minimises_a_known_least_squares_problem():

@@ -192,10 +192,20 @@ class HandSamples:
         return len(self.labels)
 
     def with_proportions(self, proportions: HandProportions) -> HandSamples:
-        """The same samples re-rested for a personal hand."""
-        return replace(
+        """The same samples re-rested for a personal hand.
+
+        What does not depend on the proportions (the skinning weights and their bone
+        lists, the model's rest transforms) is carried over where already computed:
+        a calibrating fit makes new samples at every step.
+        """
+        samples = replace(
             self, mesh=proportioned_mesh(self.model, proportions), proportions=proportions
         )
+        assert samples.mesh.weights is self.mesh.weights  # proportioned_mesh keeps them
+        for name in _SHAPE_FREE:
+            if name in self.__dict__:
+                samples.__dict__[name] = self.__dict__[name]
+        return samples
 
     @cached_property
     def finger_capsules(self) -> CapsuleSet:
@@ -235,6 +245,10 @@ class HandSamples:
         pose are its ``hand_T_bone`` times these (the same for every pose)."""
         rest = forward_kinematics(np.zeros(N_JOINTS), self.skeleton).bone_transforms[0]
         return np.asarray(np.linalg.inv(rest), dtype=np.float64)
+
+
+_SHAPE_FREE = ("_weights", "_bone_lists", "model_rest_inverse")
+"""The cached properties of :class:`HandSamples` that its proportions do not change."""
 
 
 def hand_samples(mesh: HandMesh, split: LabeledVertices, *, spacing: int = 1) -> HandSamples:
