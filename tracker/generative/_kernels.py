@@ -528,7 +528,8 @@ def silhouette_rows(
 
 @numba.njit(nogil=True, cache=True)
 def proportion_differences(
-    weights: NDArray[np.float64],
+    bones: NDArray[np.int64],
+    bone_weights: NDArray[np.float64],
     rest_m: NDArray[np.float64],
     rest_maps: NDArray[np.float64],
     pose_maps: NDArray[np.float64],
@@ -538,33 +539,30 @@ def proportion_differences(
 ) -> None:
     """Forward differences of skinned samples by the proportions.
 
-    ``weights (P, B)`` skinning weights, ``rest_m (P, 3)`` the model's rest samples,
+    ``bones, bone_weights (P, B)`` the samples' skinning bones (-1 padded) and
+    weights, ``rest_m (P, 3)`` the model's rest samples,
     ``rest_maps, pose_maps (K, B, 3, 4)`` per proportion vector (the base first, then
     each stepped one) the bones' re-resting and posing maps, ``rotation (3, 3)`` the
     hand's; ``out (P, 3, K - 1)`` gets ``rotation @ (hand_k - hand_0) / step`` where
     ``hand_k`` is the sample re-rested and posed with the blended maps of vector ``k``.
     """
-    samples, bones = weights.shape
     vectors = rest_maps.shape[0]
     hand = np.empty((vectors, 3))
     rested = np.empty(3)
     blend_rest = np.empty((3, 4))
     blend_pose = np.empty((3, 4))
-    moving = np.empty(bones, np.int64)
-    for sample in range(samples):
+    for sample in range(bones.shape[0]):
         count = 0
-        for bone in range(bones):
-            if weights[sample, bone] != 0.0:
-                moving[count] = bone
-                count += 1
+        while count < bones.shape[1] and bones[sample, count] >= 0:
+            count += 1
         for vector in range(vectors):
             for i in range(3):
                 for j in range(4):
                     blend_rest[i, j] = 0.0
                     blend_pose[i, j] = 0.0
             for index in range(count):
-                bone = moving[index]
-                weight = weights[sample, bone]
+                bone = bones[sample, index]
+                weight = bone_weights[sample, index]
                 for i in range(3):
                     for j in range(4):
                         blend_rest[i, j] += weight * rest_maps[vector, bone, i, j]

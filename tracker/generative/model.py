@@ -453,8 +453,11 @@ class PosedHand:
         The samples of the hand with the proportions and with each one stepped are
         re-rested and skinned as :func:`~glovedb.proportions.proportioned_mesh` and
         :func:`~glovedb.mesh.skin` would, all eight at once: per bone only the 3 x 4
-        maps differ, so each vertex blends them in one compiled loop (1.7 ms for the
-        3,771 samples of the default mesh; 3.7 ms with NumPy products).
+        maps differ, so each vertex blends them over its weighted bones in one compiled
+        loop (1.7 ms for the 3,771 samples of the default mesh on the Intel machine of
+        docs/tracker.md, 3.7 ms with NumPy products; on the AMD machine 2.9 ms, of
+        which about 1.9 ms are the eight skeletons' kinematics, 4.3 ms when the loop
+        tested all 16 weights of a sample).
         """
         ids = np.asarray(sample_ids, dtype=np.int64)
         if self._proportion_jacobian is not None:
@@ -474,7 +477,7 @@ class PosedHand:
             posed.append((bones[0] @ np.linalg.inv(bones[1]))[:, :3])
         jacobian = np.empty((len(ids), 3, N_PROPORTIONS))
         _kernels.proportion_differences(
-            np.ascontiguousarray(model.weights[ids], dtype=np.float64),
+            self._bones[ids], self._bone_weights[ids],
             np.ascontiguousarray(model.rest_vertices_m[ids], dtype=np.float64),
             np.ascontiguousarray(np.stack(moves)), np.ascontiguousarray(np.stack(posed)),
             np.ascontiguousarray(self.pose.rotation), _PROPORTION_STEP, jacobian,
