@@ -2,7 +2,9 @@
 
 Every term returns :class:`Residuals`: weighted residuals whose squares add up to the
 term's energy and their Jacobian by the 26 unknowns of :mod:`tracker.generative.model`
-(and, while a user's hand proportions are estimated, by the 7 proportions).
+(and, while a user's hand proportions are estimated, by the 7 proportions); the
+terms whose Jacobian costs time compute it when first asked for
+(:meth:`Residuals.deferred`), which the solver does only where it linearises.
 :mod:`tracker.generative.fit` stacks them; :mod:`tracker.generative.solver` minimises
 the sum.
 
