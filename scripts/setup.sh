@@ -60,7 +60,12 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$wanted" ]; then
     if command -v nvidia-smi >/dev/null; then
       pip install -q "torch==2.13.0"
     else
-      pip install -q "torch==2.13.0" --index-url https://download.pytorch.org/whl/cpu
+      # Few retries: where PyTorch's index cannot be reached (no DNS, a firewall),
+      # pip would otherwise retry every dependency for minutes.
+      pip install -q --retries 1 --timeout 20 "torch==2.13.0" \
+        --index-url https://download.pytorch.org/whl/cpu
+      # Then the configured indexes' build (the CUDA one on PyPI, a few GB).
+      .venv/bin/python -c "import torch" 2>/dev/null || pip install -q "torch==2.13.0"
     fi
   fi
   # The project wants Open3D's CPU build where it exists: the CUDA build an older
