@@ -21,7 +21,7 @@ length and its flexion explain the same points, and fitting both drifts the leng
 
 from __future__ import annotations
 
-from collections.abc import Callable, Generator
+from collections.abc import Generator
 from dataclasses import dataclass, field
 from functools import cache
 
@@ -53,6 +53,7 @@ from tracker.generative.model import N_PARAMS, HandPose, HandSamples, PosedHand
 from tracker.generative.observation import Observation
 from tracker.generative.solver import (
     Evaluation,
+    Jacobian,
     eliminated_information,
     in_one_call,
     levenberg_marquardt_steps,
@@ -440,7 +441,7 @@ def fit_frame_steps(
     # hand and Jacobian (a function). The solver keeps exactly the steps that lower the
     # energy, so this is the evaluation of the state it ends on, also when it refused
     # its last steps (re-evaluating that state cost a sixth of a frame's fit).
-    best: list[tuple[float, _State, list[Residuals], dict[str, float], PosedHand, Callable]] = []
+    best: list[tuple[float, _State, list[Residuals], dict[str, float], PosedHand, Jacobian]] = []
 
     def evaluate(state: _State) -> Evaluation:
         at_start = state is first

@@ -201,10 +201,10 @@ class HandSamples:
         samples = replace(
             self, mesh=proportioned_mesh(self.model, proportions), proportions=proportions
         )
-        assert samples.mesh.weights is self.mesh.weights  # proportioned_mesh keeps them
-        for name in _SHAPE_FREE:
-            if name in self.__dict__:
-                samples.__dict__[name] = self.__dict__[name]
+        if samples.mesh.weights is self.mesh.weights:  # proportioned_mesh keeps them
+            for name in _SHAPE_FREE:
+                if name in self.__dict__:
+                    samples.__dict__[name] = self.__dict__[name]
         return samples
 
     @cached_property
@@ -221,9 +221,10 @@ class HandSamples:
     @cached_property
     def _bone_lists(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
         """Each sample's bones of non-zero weight, ascending, and those weights, as
-        ``(S, B)`` arrays (``B`` the most bones of one sample; -1 and 0 pad): the
-        compiled passes blend over these instead of testing all 16 weights (0.145 ->
-        0.107 ms to pose the 3,771 samples of the default mesh, the same sums)."""
+        ``(S, B)`` arrays (``B`` the most bones of one sample; -1 and 0 pad), the
+        model's as well as the mesh's (re-resting keeps the weights): the compiled
+        passes blend over these instead of testing all 16 weights (0.145 -> 0.107 ms
+        to pose the 3,771 samples of the default mesh, the same sums)."""
         weights = self._weights
         used = weights != 0.0
         width = max(int(used.sum(axis=1).max(initial=0)), 1)

@@ -31,8 +31,10 @@ from numpy.typing import NDArray
 State = TypeVar("State")
 Result = TypeVar("Result")
 Params = ParamSpec("Params")
-Evaluation = tuple[NDArray[np.float64], Callable[[], NDArray[np.float64]]]
-"""The residuals ``r (M,)`` at a state and the function that gives their ``J (M, K)``."""
+Jacobian = Callable[[], NDArray[np.float64]]
+"""The function that gives the Jacobian ``J (M, K)`` of residuals at a state."""
+Evaluation = tuple[NDArray[np.float64], Jacobian]
+"""The residuals ``r (M,)`` at a state and their :data:`Jacobian` function."""
 
 _EPS = 1e-9
 _SHRINK, _GROW = 0.3, 5.0
