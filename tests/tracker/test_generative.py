@@ -17,7 +17,7 @@ from glovedb.mesh import HandMesh, make_hand_mesh, skin, skinning_matrices
 from glovedb.pattern import load_pattern, split_by_label
 from glovedb.posture_prior import fit_posture_prior, load_posture_prior, with_task_postures
 from glovedb.postures import named_posture
-from glovedb.proportions import HandProportions, proportioned_mesh
+from glovedb.proportions import FACTOR_RANGE, HandProportions, proportioned_mesh
 from glovedb.rotations import axis_angle_to_matrix, geodesic_angle
 from tracker.generative.energy.collision import collision_residuals
 from tracker.generative.energy.data import data_residuals, partners
@@ -114,6 +114,24 @@ def test_proportion_jacobian_matches_central_differences(samples):
         columns.append(posed @ pose.rotation.T + pose.translation_m - hand.points_m[ids])
     reference = np.stack(columns, 2) / _PROPORTION_STEP
     np.testing.assert_allclose(hand.proportion_jacobian(ids), reference, atol=1e-9)
+
+
+def test_proportion_jacobian_at_the_top_of_the_factor_range(samples):
+    # A fit may clip a factor to the top of its range; stepping it up would leave the
+    # range (a ValueError once): the derivative then steps down.
+    pose = _pose("open")
+    top = FACTOR_RANGE[1]
+    largest = samples.with_proportions(HandProportions(top, (1.0, 1.0, 1.0, 1.0, top), 1.0))
+    ids = np.arange(0, len(samples), 97)
+    base = largest.proportions.as_vector()
+    numeric = []
+    for k in range(7):
+        down = base.copy()
+        down[k] -= 1e-6
+        moved = PosedHand(samples.with_proportions(HandProportions.from_vector(down)), pose)
+        numeric.append((PosedHand(largest, pose).points_m[ids] - moved.points_m[ids]) / 1e-6)
+    got = PosedHand(largest, pose).proportion_jacobian(ids)
+    np.testing.assert_allclose(got, np.stack(numeric, 2), atol=2e-3)
 
 
 def _check_term(make, pose, *, atol=1e-6, rtol=1e-4):

@@ -534,17 +534,18 @@ def proportion_differences(
     rest_maps: NDArray[np.float64],
     pose_maps: NDArray[np.float64],
     rotation: NDArray[np.float64],
-    step: float,
+    steps: NDArray[np.float64],
     out: NDArray[np.float64],
 ) -> None:
-    """Forward differences of skinned samples by the proportions.
+    """Finite differences of skinned samples by the proportions.
 
     ``bones, bone_weights (P, B)`` the samples' skinning bones (-1 padded) and
     weights, ``rest_m (P, 3)`` the model's rest samples,
     ``rest_maps, pose_maps (K, B, 3, 4)`` per proportion vector (the base first, then
     each stepped one) the bones' re-resting and posing maps, ``rotation (3, 3)`` the
-    hand's; ``out (P, 3, K - 1)`` gets ``rotation @ (hand_k - hand_0) / step`` where
-    ``hand_k`` is the sample re-rested and posed with the blended maps of vector ``k``.
+    hand's, ``steps (K - 1,)`` each stepped vector's step; ``out (P, 3, K - 1)`` gets
+    ``rotation @ (hand_k - hand_0) / steps[k - 1]`` where ``hand_k`` is the sample
+    re-rested and posed with the blended maps of vector ``k``.
     """
     vectors = rest_maps.shape[0]
     hand = np.empty((vectors, 3))
@@ -580,7 +581,7 @@ def proportion_differences(
                 total = 0.0
                 for j in range(3):
                     total += rotation[i, j] * (hand[vector, j] - hand[0, j])
-                out[sample, i, vector - 1] = total / step
+                out[sample, i, vector - 1] = total / steps[vector - 1]
 
 
 @numba.njit(nogil=True, cache=True)

@@ -50,6 +50,7 @@ from glovedb.hand_model import (
 from glovedb.mesh import HandMesh, vertex_normals
 from glovedb.pattern import LabeledVertices
 from glovedb.proportions import (
+    FACTOR_RANGE,
     N_PROPORTIONS,
     HandProportions,
     bone_stretch,
@@ -449,7 +450,8 @@ class PosedHand:
 
     def proportion_jacobian(self, sample_ids: ArrayLike) -> NDArray[np.float64]:
         """``(P, 3, 7)`` forward-difference derivatives of samples (camera frame) by
-        the hand proportions (:meth:`glovedb.proportions.HandProportions.as_vector`).
+        the hand proportions (:meth:`glovedb.proportions.HandProportions.as_vector`;
+        backward differences for a factor at the top of its range).
 
         The samples of the hand with the proportions and with each one stepped are
         re-rested and skinned as :func:`~glovedb.proportions.proportioned_mesh` and
@@ -464,8 +466,11 @@ class PosedHand:
         if self._proportion_jacobian is not None:
             return self._proportion_jacobian[ids]
         model = self.samples.model
-        vectors = np.tile(self.samples.proportions.as_vector(), (N_PROPORTIONS + 1, 1))
-        vectors[1:] += _PROPORTION_STEP * np.eye(N_PROPORTIONS)
+        base = self.samples.proportions.as_vector()
+        # A factor at the top of its range is stepped down (a backward difference).
+        steps = np.where(base + _PROPORTION_STEP <= FACTOR_RANGE[1], 1.0, -1.0) * _PROPORTION_STEP
+        vectors = np.tile(base, (N_PROPORTIONS + 1, 1))
+        vectors[1:] += np.diag(steps)
         postures = np.stack([self.pose.posture_rad, np.zeros(N_JOINTS)])
         model_rest = self.samples.model_rest_inverse
         moves, posed = [], []
@@ -481,7 +486,7 @@ class PosedHand:
             self._bones[ids], self._bone_weights[ids],
             np.ascontiguousarray(model.rest_vertices_m[ids], dtype=np.float64),
             np.ascontiguousarray(np.stack(moves)), np.ascontiguousarray(np.stack(posed)),
-            np.ascontiguousarray(self.pose.rotation), _PROPORTION_STEP, jacobian,
+            np.ascontiguousarray(self.pose.rotation), steps, jacobian,
         )  # fmt: skip
         return jacobian
 
