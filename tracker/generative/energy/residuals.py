@@ -59,7 +59,8 @@ class Residuals:
         cls, name: str, values: NDArray[np.float64], derive: Callable[[], Derivatives]
     ) -> Residuals:
         """Residuals whose derivatives ``derive()`` computes on first use (once)."""
-        residuals = cls(name, values, np.zeros((0, N_PARAMS)))
+        residuals = cls.__new__(cls)
+        residuals.name, residuals.values = name, values
         residuals._derivatives, residuals._derive = None, derive
         return residuals
 
