@@ -411,6 +411,13 @@ def test_samples_with_proportions_carry_what_the_proportions_do_not_change(sampl
         ):
             np.testing.assert_array_equal(carried, recomputed)
     assert not np.array_equal(stretched._rest_inverse, samples._rest_inverse)
+    # Samples that never computed them compute them once, for themselves and the new
+    # samples (the tracker re-rests its model's samples at every calibrating frame).
+    model = replace(samples)
+    first = model.with_proportions(HandProportions(1.1))
+    second = model.with_proportions(HandProportions(0.9))
+    for name in _SHAPE_FREE:
+        assert first.__dict__[name] is model.__dict__[name] is second.__dict__[name]
 
 
 def test_solver_minimises_a_known_least_squares_problem():
