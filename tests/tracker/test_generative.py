@@ -35,7 +35,6 @@ from tracker.generative.energy.silhouette import silhouette_residuals
 from tracker.generative.energy.temporal import temporal_residuals
 from tracker.generative.fit import FitSettings, fit_frame, fit_frame_steps
 from tracker.generative.model import (
-    _PROPORTION_STEP,
     _SHAPE_FREE,
     KEYPOINT_BONES,
     N_PARAMS,
@@ -44,6 +43,7 @@ from tracker.generative.model import (
     hand_samples,
 )
 from tracker.generative.observation import look_up
+from tracker.generative.proportion_derivatives import PROPORTION_STEP
 from tracker.generative.solver import levenberg_marquardt_steps, run_to_end
 
 
@@ -108,12 +108,31 @@ def test_proportion_jacobian_matches_central_differences(samples):
     columns = []
     for k in range(7):
         stepped = base.copy()
-        stepped[k] += _PROPORTION_STEP
+        stepped[k] += PROPORTION_STEP
         moved = proportioned_mesh(chosen, HandProportions.from_vector(stepped))
         posed = skin(moved, skinning_matrices(pose.posture_rad, moved.skeleton))[0]
         columns.append(posed @ pose.rotation.T + pose.translation_m - hand.points_m[ids])
-    reference = np.stack(columns, 2) / _PROPORTION_STEP
+    reference = np.stack(columns, 2) / PROPORTION_STEP
     np.testing.assert_allclose(hand.proportion_jacobian(ids), reference, atol=1e-9)
+
+
+def test_proportion_derivatives_do_not_depend_on_which_samples_are_asked_first(samples):
+    # Computed per sample when first asked for: the same values as all at once, in
+    # any order, with repeated ids, and given to a hand posed elsewhere.
+    pose = _pose("open")
+    stretched = samples.with_proportions(HandProportions(1.05, (1.1, 1.0, 0.95, 1.0, 1.2), 1.1))
+    everything = PosedHand(stretched, pose).proportion_jacobian(np.arange(len(samples)))
+    hand = PosedHand(stretched, pose)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        ids = rng.integers(0, len(samples), 200)
+        np.testing.assert_array_equal(hand.proportion_jacobian(ids), everything[ids])
+    moved = PosedHand(stretched, _pose("fist"), proportion_derivatives=hand.proportion_derivatives)
+    ids = np.arange(0, len(samples), 7)
+    np.testing.assert_array_equal(moved.proportion_jacobian(ids), everything[ids])
+    assert not np.array_equal(
+        PosedHand(stretched, _pose("fist")).proportion_jacobian(ids), everything[ids]
+    )
 
 
 def test_proportion_jacobian_at_the_top_of_the_factor_range(samples):

@@ -51,6 +51,7 @@ from tracker.generative.energy.silhouette import silhouette_residuals
 from tracker.generative.energy.temporal import temporal_residuals
 from tracker.generative.model import N_PARAMS, HandPose, HandSamples, PosedHand
 from tracker.generative.observation import Observation
+from tracker.generative.proportion_derivatives import ProportionDerivatives
 from tracker.generative.solver import (
     Evaluation,
     Jacobian,
@@ -279,14 +280,14 @@ def frame_energy(
     tip_targets_m: NDArray[np.float64] | None = None,
     reference: ReferenceBasis | None = None,
     proportions: bool = False,
-    proportion_jacobian: NDArray[np.float64] | None = None,
+    proportion_derivatives: ProportionDerivatives | None = None,
     hand: PosedHand | None = None,
     partners_at_pose: NDArray[np.int64] | None = None,
 ) -> tuple[list[Residuals], dict[str, float], PosedHand]:
     """Every term's residuals at one pose, and the fit's quality measures.
 
     ``hand``, if given, is the hand already posed at ``pose`` (``samples`` and
-    ``proportion_jacobian`` are then not used to pose it again);
+    ``proportion_derivatives`` are then not used to pose it again);
     ``partners_at_pose`` the data term's pairing there, if already found
     (:func:`tracker.generative.energy.data.partners`).
 
@@ -299,7 +300,7 @@ def frame_energy(
         The hand posed at ``pose``.
     """
     if hand is None:
-        hand = PosedHand(samples, pose, proportion_jacobian=proportion_jacobian)
+        hand = PosedHand(samples, pose, proportion_derivatives=proportion_derivatives)
     s = settings
     data, matched = data_residuals(
         hand, observation.points_m, observation.labels, weight=s.data_weight,
@@ -426,16 +427,13 @@ def fit_frame_steps(
         "tip_targets_m": tip_targets_m,
         "reference": None,  # set at the first evaluation, which is at the start
         "proportions": estimate_proportions,
-        # The proportions' derivatives change little over one frame's solve: computed
-        # once at the start for all samples, they serve every iteration.
-        "proportion_jacobian": start_hand.proportion_jacobian(np.arange(len(samples)))
+        # The proportions' derivatives change little over one frame's solve: those at
+        # the start serve every iteration.
+        "proportion_derivatives": start_hand.proportion_derivatives
         if estimate_proportions
         else None,
     }
     first = _State(start, samples)
-    # The start's evaluation takes the hand posed above, unless it needs the
-    # proportions' derivatives, which that one lacks.
-    posed_start = None if estimate_proportions else start_hand
 
     # The evaluation of least energy so far: its energy, state, terms, quality, posed
     # hand and Jacobian (a function). The solver keeps exactly the steps that lower the
@@ -446,7 +444,7 @@ def fit_frame_steps(
     def evaluate(state: _State) -> Evaluation:
         at_start = state is first
         terms, quality, hand = frame_energy(
-            state.samples, state.pose, observation, hand=posed_start if at_start else None,
+            state.samples, state.pose, observation, hand=start_hand if at_start else None,
             partners_at_pose=start_partners if at_start else None, **kwargs,  # type: ignore[arg-type]
         )  # fmt: skip
         if kwargs["reference"] is None and settings.reference_weight > 0:

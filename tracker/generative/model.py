@@ -20,8 +20,9 @@ joint's rotation (:func:`glovedb.hand_model.bone_angles`).
 The model surface is a set of samples of the skinned glove mesh (vertex positions,
 rest normals and color classes), posed without the mesh's faces: normals follow the
 blended bone rotations. Hand proportions (:mod:`glovedb.proportions`) re-rest the
-samples; their derivatives (:meth:`PosedHand.proportion_jacobian`) are forward
-differences, used only while a user's proportions are estimated.
+samples; their derivatives (:meth:`PosedHand.proportion_jacobian`,
+:mod:`tracker.generative.proportion_derivatives`) are forward differences, used only
+while a user's proportions are estimated.
 
 The fit poses the hand several times per frame: posing the samples, their Jacobian
 rows and the keypoints' Jacobians are compiled loops (:mod:`tracker.generative._kernels`),
@@ -49,21 +50,13 @@ from glovedb.hand_model import (
 )
 from glovedb.mesh import HandMesh, vertex_normals
 from glovedb.pattern import LabeledVertices
-from glovedb.proportions import (
-    FACTOR_RANGE,
-    N_PROPORTIONS,
-    HandProportions,
-    bone_stretch,
-    proportioned_mesh,
-    proportioned_skeleton,
-)
+from glovedb.proportions import HandProportions, proportioned_mesh
 from glovedb.rotations import axis_angle_to_matrix
 from tracker.generative import _kernels
+from tracker.generative.proportion_derivatives import ProportionDerivatives
 
 N_PARAMS = 6 + N_JOINTS
 """Unknowns of one frame's fit: rotation step (3), translation step (3), angles (20)."""
-
-_PROPORTION_STEP = 1e-3
 
 
 def _dof_table() -> tuple[NDArray[np.int64], NDArray[np.bool_], NDArray[np.float64]]:
@@ -290,9 +283,9 @@ class PosedHand:
     ----------
     samples : HandSamples
     pose : HandPose
-    proportion_jacobian : (S, 3, 7) float, optional
-        Derivatives of all samples by the proportions, computed before (at a nearby
-        pose): :meth:`proportion_jacobian` then picks from them instead of computing.
+    proportion_derivatives : ProportionDerivatives, optional
+        The samples' derivatives by the proportions at a nearby pose (a fit's start),
+        for :meth:`proportion_jacobian`; by default those at this pose.
 
     Attributes
     ----------
@@ -313,11 +306,11 @@ class PosedHand:
         samples: HandSamples,
         pose: HandPose,
         *,
-        proportion_jacobian: NDArray[np.float64] | None = None,
+        proportion_derivatives: ProportionDerivatives | None = None,
     ) -> None:
         self.samples = samples
         self.pose = pose
-        self._proportion_jacobian = proportion_jacobian
+        self._proportion_derivatives = proportion_derivatives
         R, t = pose.rotation, pose.translation_m
         kinematics = forward_kinematics(pose.posture_rad, samples.skeleton)
         world = kinematics.bone_transforms[0]  # (16, 4, 4) hand_T_bone
@@ -451,45 +444,23 @@ class PosedHand:
 
     def proportion_jacobian(self, sample_ids: ArrayLike) -> NDArray[np.float64]:
         """``(P, 3, 7)`` forward-difference derivatives of samples (camera frame) by
-        the hand proportions (:meth:`glovedb.proportions.HandProportions.as_vector`;
-        backward differences for a factor at the top of its range).
+        the hand proportions (:mod:`tracker.generative.proportion_derivatives`), from
+        :attr:`proportion_derivatives`."""
+        return self.proportion_derivatives.rows(sample_ids)
 
-        The samples of the hand with the proportions and with each one stepped are
-        re-rested and skinned as :func:`~glovedb.proportions.proportioned_mesh` and
-        :func:`~glovedb.mesh.skin` would, all eight at once: per bone only the 3 x 4
-        maps differ, so each vertex blends them over its weighted bones in one compiled
-        loop (1.7 ms for the 3,771 samples of the default mesh on the Intel machine of
-        docs/tracker.md, 3.7 ms with NumPy products; on the AMD machine 2.9 ms, of
-        which about 1.9 ms are the eight skeletons' kinematics, 4.3 ms when the loop
-        tested all 16 weights of a sample).
-        """
-        ids = np.asarray(sample_ids, dtype=np.int64)
-        if self._proportion_jacobian is not None:
-            return self._proportion_jacobian[ids]
-        model = self.samples.model
-        base = self.samples.proportions.as_vector()
-        # A factor at the top of its range is stepped down (a backward difference).
-        steps = np.where(base + _PROPORTION_STEP <= FACTOR_RANGE[1], 1.0, -1.0) * _PROPORTION_STEP
-        vectors = np.tile(base, (N_PROPORTIONS + 1, 1))
-        vectors[1:] += np.diag(steps)
-        postures = np.stack([self.pose.posture_rad, np.zeros(N_JOINTS)])
-        model_rest = self.samples.model_rest_inverse
-        moves, posed = [], []
-        for vector in vectors:
-            proportions = HandProportions.from_vector(vector)
-            personal = proportioned_skeleton(model.skeleton, proportions)
-            # One forward kinematics for the posture and the rest of each skeleton.
-            bones = forward_kinematics(postures, personal).bone_transforms
-            moves.append((bones[1] @ bone_stretch(proportions) @ model_rest)[:, :3])
-            posed.append((bones[0] @ np.linalg.inv(bones[1]))[:, :3])
-        jacobian = np.empty((len(ids), 3, N_PROPORTIONS))
-        _kernels.proportion_differences(
-            self._bones[ids], self._bone_weights[ids],
-            np.ascontiguousarray(model.rest_vertices_m[ids], dtype=np.float64),
-            np.ascontiguousarray(np.stack(moves)), np.ascontiguousarray(np.stack(posed)),
-            np.ascontiguousarray(self.pose.rotation), steps, jacobian,
-        )  # fmt: skip
-        return jacobian
+    @property
+    def proportion_derivatives(self) -> ProportionDerivatives:
+        """The samples' derivatives by the proportions: those given when posing (at a
+        nearby pose), else at this pose, made when first asked for; each sample's are
+        computed when first asked for and kept."""
+        if self._proportion_derivatives is None:
+            samples = self.samples
+            self._proportion_derivatives = ProportionDerivatives(
+                self._bones, self._bone_weights, samples.model.rest_vertices_m,
+                samples.model.skeleton, samples.model_rest_inverse, samples.proportions,
+                self.pose.posture_rad, self.pose.rotation,
+            )  # fmt: skip
+        return self._proportion_derivatives
 
     def _jacobian(
         self, points: NDArray[np.float64], moved_hand: NDArray[np.float64], share: NDArray
