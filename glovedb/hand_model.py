@@ -32,6 +32,7 @@ Joint limits are the usual active ranges of motion, in degrees in :data:`JOINT_L
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -246,6 +247,36 @@ def forward_kinematics(posture_rad: ArrayLike, skeleton: Skeleton | None = None)
     z_angle, x_angle = bone_angles(posture)
     world = np.empty((n, N_BONES, 4, 4))
     keypoints = np.empty((n, N_KEYPOINTS, 3))
+    _chain(z_angle, x_angle, skeleton, world, keypoints)
+    return Kinematics(keypoints, world)
+
+
+def bone_transforms_per_skeleton(
+    posture_rad: ArrayLike, skeletons: Sequence[Skeleton]
+) -> NDArray[np.float64]:
+    """``(K, N, 16, 4, 4)`` ``hand_T_bone`` of ``(N, 20)`` postures on each of K
+    skeletons: :func:`forward_kinematics`'s bone transforms, the same numbers, with the
+    postures' joint angles worked out once (a fit that differentiates by the hand
+    proportions poses 8 skeletons per frame)."""
+    posture = as_array("posture_rad", posture_rad, (..., N_JOINTS), np.float64, finite=True)
+    posture = posture.reshape(-1, N_JOINTS)
+    z_angle, x_angle = bone_angles(posture)
+    world = np.empty((len(skeletons), len(posture), N_BONES, 4, 4))
+    keypoints = np.empty((len(posture), N_KEYPOINTS, 3))
+    for k, skeleton in enumerate(skeletons):
+        _chain(z_angle, x_angle, skeleton, world[k], keypoints)
+    return world
+
+
+def _chain(
+    z_angle: NDArray[np.float64],
+    x_angle: NDArray[np.float64],
+    skeleton: Skeleton,
+    world: NDArray[np.float64],
+    keypoints: NDArray[np.float64],
+) -> None:
+    """Fill ``world (N, 16, 4, 4)`` and ``keypoints (N, 21, 3)`` for the joint angles
+    ``(N, 16)`` of :func:`bone_angles` on ``skeleton``."""
     _kinematics_kernels.chain(
         z_angle, x_angle,
         np.ascontiguousarray(skeleton.rest_before, dtype=np.float64),
@@ -254,7 +285,6 @@ def forward_kinematics(posture_rad: ArrayLike, skeleton: Skeleton | None = None)
         _PARENTS, np.ascontiguousarray(skeleton.lengths_m[_LAST_BONES], dtype=np.float64),
         world, keypoints,
     )  # fmt: skip
-    return Kinematics(keypoints, world)
 
 
 _PARENTS = np.asarray(BONE_PARENTS, dtype=np.int64)

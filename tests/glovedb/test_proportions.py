@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from glovedb.hand_model import forward_kinematics, make_skeleton
+from glovedb.hand_model import bone_transforms_per_skeleton, forward_kinematics, make_skeleton
 from glovedb.mesh import make_hand_mesh, pose_mesh
 from glovedb.postures import named_posture
 from glovedb.proportions import (
@@ -98,3 +98,20 @@ def test_proportions_file_round_trip_and_bad_files(tmp_path):
     (tmp_path / "bad.json").write_text('{"length_scale": 1.0}')
     with pytest.raises(ValueError, match="not a hand proportions file"):
         load_proportions(tmp_path / "bad.json")
+
+
+def test_bone_transforms_per_skeleton_are_forward_kinematics_on_each():
+    rng = np.random.default_rng(3)
+    postures = rng.uniform(-0.5, 1.2, (3, 20))
+    skeletons = [
+        proportioned_skeleton(
+            make_skeleton(), HandProportions(scale, (1.1, 0.9, 1.0, 1.2, 0.8), palm)
+        )
+        for scale, palm in ((0.8, 1.0), (1.0, 1.1), (1.3, 0.9))
+    ]
+    per_skeleton = bone_transforms_per_skeleton(postures, skeletons)
+    assert per_skeleton.shape == (3, 3, 16, 4, 4)
+    for transforms, skeleton in zip(per_skeleton, skeletons, strict=True):
+        np.testing.assert_array_equal(
+            transforms, forward_kinematics(postures, skeleton).bone_transforms
+        )

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from glovedb.hand_model import N_JOINTS, Skeleton, forward_kinematics
+from glovedb.hand_model import N_JOINTS, Skeleton, bone_transforms_per_skeleton
 from glovedb.proportions import (
     FACTOR_RANGE,
     N_PROPORTIONS,
@@ -77,18 +77,14 @@ class ProportionDerivatives:
         vectors = np.tile(base, (N_PROPORTIONS + 1, 1))
         vectors[1:] += np.diag(self.steps)
         postures = np.stack([np.asarray(posture_rad, dtype=np.float64), np.zeros(N_JOINTS)])
-        transforms, stretches = [], []
-        for vector in vectors:
-            stepped = HandProportions.from_vector(vector)
-            personal = proportioned_skeleton(model_skeleton, stepped)
-            # One forward kinematics for the posture and the rest of each skeleton.
-            transforms.append(forward_kinematics(postures, personal).bone_transforms)
-            stretches.append(bone_stretch(stepped))
-        bone_transforms = np.stack(transforms)  # (8, 2, 16, 4, 4): posed, at rest
+        stepped = [HandProportions.from_vector(vector) for vector in vectors]
+        # One kinematics for the posture and the rest of each skeleton.
+        bone_transforms = bone_transforms_per_skeleton(
+            postures, [proportioned_skeleton(model_skeleton, p) for p in stepped]
+        )  # (8, 2, 16, 4, 4): posed, at rest
         posed, rest = bone_transforms[:, 0], bone_transforms[:, 1]
-        self._rest_maps = np.ascontiguousarray(
-            (rest @ np.stack(stretches) @ model_rest_inverse)[..., :3, :]
-        )
+        stretches = np.stack([bone_stretch(p) for p in stepped])
+        self._rest_maps = np.ascontiguousarray((rest @ stretches @ model_rest_inverse)[..., :3, :])
         self._pose_maps = np.ascontiguousarray((posed @ np.linalg.inv(rest))[..., :3, :])
         self._bones, self._bone_weights = bones, bone_weights
         self._model_rest = np.ascontiguousarray(model_rest_m, dtype=np.float64)
