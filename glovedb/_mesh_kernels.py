@@ -28,3 +28,32 @@ def accumulate_face_normals(
             normals[corner, 0] += nx
             normals[corner, 1] += ny
             normals[corner, 2] += nz
+
+
+@numba.njit(nogil=True, cache=True)
+def blend_skin(
+    weights: NDArray[np.float32],
+    matrices: NDArray[np.float64],
+    rest: NDArray[np.float64],
+    out: NDArray[np.float64],
+) -> None:
+    """Linear blend skinning: ``out[n, v] = sum_b weights[v, b] * matrices[n, b] @
+    (rest[v], 1)`` for ``weights (V, B)``, ``matrices (N, B, 3, 4)``, ``rest (V, 3)``
+    into ``out (N, V, 3)``, over each vertex's non-zero weights in bone order."""
+    blended = np.empty((3, 4))
+    for n in range(matrices.shape[0]):
+        for v in range(weights.shape[0]):
+            blended[:] = 0.0
+            for b in range(weights.shape[1]):
+                w = np.float64(weights[v, b])
+                if w != 0.0:
+                    for i in range(3):
+                        for j in range(4):
+                            blended[i, j] += w * matrices[n, b, i, j]
+            for i in range(3):
+                out[n, v, i] = (
+                    blended[i, 0] * rest[v, 0]
+                    + blended[i, 1] * rest[v, 1]
+                    + blended[i, 2] * rest[v, 2]
+                    + blended[i, 3]
+                )

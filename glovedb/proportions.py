@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from glovedb import __version__
 from glovedb.hand_model import N_BONES, N_JOINTS, Skeleton, forward_kinematics
-from glovedb.mesh import HandMesh
+from glovedb.mesh import HandMesh, skin
 
 FACTOR_RANGE = (0.5, 2.0)
 """Every factor must lie in this range (a hand half or twice the model's)."""
@@ -171,9 +171,7 @@ def proportioned_mesh(
     )
     stretch = bone_stretch(proportions, thickness=thickness)
     moves = (personal_rest @ stretch @ np.linalg.inv(model_rest))[:, :3, :]  # (16, 3, 4)
-    blended = (mesh.weights.astype(np.float64) @ moves.reshape(N_BONES, 12)).reshape(-1, 3, 4)
-    vertices = np.einsum("vij,vj->vi", blended[..., :3], mesh.rest_vertices_m) + blended[..., 3]
-    return HandMesh(skeleton, vertices, mesh.faces, mesh.weights)
+    return mesh.rerested(skeleton, skin(mesh, moves[None])[0])
 
 
 def bone_stretch(proportions: HandProportions, *, thickness: float = 1.0) -> NDArray[np.float64]:

@@ -11,7 +11,7 @@ from glovedb.capsules import (
     round_cone_distance,
 )
 from glovedb.hand_model import N_BONES, forward_kinematics, joint_limits_rad, make_skeleton
-from glovedb.mesh import make_hand_mesh, pose_mesh, skinning_matrices, vertex_normals
+from glovedb.mesh import make_hand_mesh, pose_mesh, skin, skinning_matrices, vertex_normals
 from glovedb.postures import named_posture
 from glovedb.shape import hand_distance, make_hand_shape
 from glovedb.surface_nets import surface_nets
@@ -101,6 +101,16 @@ def test_batch_posing_matches_single(hand_mesh):
     batch = pose_mesh(hand_mesh, postures)
     assert batch.shape == (3,) + hand_mesh.rest_vertices_m.shape
     np.testing.assert_allclose(batch[2], pose_mesh(hand_mesh, postures[2]), atol=1e-12)
+
+
+def test_skinning_is_the_weighted_sum_of_every_bone_matrix(hand_mesh):
+    # The compiled loop skips zero weights; the straightforward sum over all 16 bones.
+    matrices = np.random.default_rng(4).normal(size=(2, N_BONES, 3, 4))
+    weights = hand_mesh.weights.astype(np.float64)
+    blended = np.einsum("vb,nbij->nvij", weights, matrices)
+    dense = np.einsum("nvij,vj->nvi", blended[..., :3], hand_mesh.rest_vertices_m)
+    expected = dense + blended[..., 3]
+    np.testing.assert_allclose(skin(hand_mesh, matrices), expected, rtol=0, atol=1e-12)
 
 
 def test_capsules_approximate_the_posed_fingers(hand_mesh):

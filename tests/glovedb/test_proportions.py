@@ -115,3 +115,10 @@ def test_bone_transforms_per_skeleton_are_forward_kinematics_on_each():
         np.testing.assert_array_equal(
             transforms, forward_kinematics(postures, skeleton).bone_transforms
         )
+
+
+def test_a_proportioned_mesh_keeps_what_the_weights_decide(mesh):
+    stretched = proportioned_mesh(mesh, HandProportions(1.1, (1.0, 1.2, 1.0, 1.0, 0.9), 1.05))
+    assert stretched.weights is mesh.weights
+    assert stretched.dominant_bone is mesh.dominant_bone  # carried, not recomputed
+    np.testing.assert_array_equal(stretched.dominant_bone, np.argmax(mesh.weights, axis=1))
