@@ -76,7 +76,9 @@ def observe(
         The frame's depth, metres (0: none).
     intrinsics : CameraIntrinsics
     max_points : int
-        The cloud is subsampled evenly to at most this many points.
+        The cloud is subsampled evenly, every ``len(cloud) // max_points``-th point:
+        at least this many points and fewer than twice as many (all of a cloud of
+        fewer).
 
     Returns
     -------
