@@ -78,6 +78,11 @@ class DeferredLookup(Generic[W, T]):
         """Whether a job waits to be collected."""
         return self._pending is not None
 
+    @property
+    def has_steps(self) -> bool:
+        """Whether a job has steps left for :meth:`advance`."""
+        return self._pending is not None and not self._pending.done
+
     def submit(self, frame_index: int, warm: W, job: Job[T]) -> None:
         """Take ``job`` for frame ``frame_index`` (whose warm fit was ``warm``); none of
         it runs until :meth:`advance` or :meth:`collect`.

@@ -641,6 +641,19 @@ class Tracker(Closing):
             fingertip_detections=detections,
         )  # fmt: skip
 
+    def run_deferred_step(self) -> float:
+        """Run one step of the pending periodic lookup (:mod:`tracker.background`), if
+        it has steps left; the milliseconds it took, 0 when none ran.
+
+        For a caller that would otherwise wait for its next frame (a reader still
+        decoding it): the frame that collects the lookup's fit then finds it done
+        instead of running its steps. The poses are the same (the job's inputs were
+        fixed when it was submitted); only where its time goes changes.
+        """
+        if self._background is None or not self._background.has_steps:
+            return 0.0
+        return self._background.advance()
+
     def reset(self) -> None:
         """Forget the past frames (start of a new sequence); keep the proportions."""
         if self._smoother is not None:

@@ -94,6 +94,10 @@ class Prefetch(Generic[T]):
     def __iter__(self) -> Prefetch[T]:
         return self
 
+    def ready(self) -> bool:
+        """Whether the next item (or the end) can be taken without waiting."""
+        return self._finished or not self._queue.empty()
+
     def __next__(self) -> T:
         if self._finished:
             raise StopIteration
@@ -217,6 +221,11 @@ class ProcessPrefetch(Generic[T]):
 
     def __iter__(self) -> ProcessPrefetch[T]:
         return self
+
+    def ready(self) -> bool:
+        """Whether the next item (or the end) can be taken without waiting (what the
+        child has sent; a message still in its pipe may be missed)."""
+        return self._finished or not self._ready.empty() or not self._process.is_alive()
 
     def __next__(self) -> T:
         if self._finished:

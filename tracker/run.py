@@ -126,6 +126,55 @@ def _remove_earlier_outputs(folder: Path) -> None:
             frames.rmdir()
 
 
+class IdleTime:
+    """Runs the tracker's deferred work (the periodic lookup's steps,
+    :mod:`tracker.background`) while the frame loop would wait for its next frame, so
+    that the frame that collects that work finds it done.
+
+    Two kinds of wait are known: a reader preparing frames ahead that has none ready
+    (``ready``), and a camera whose next frame is due one period after the last
+    arrived, when the loop had to wait for that one (``fps``; the camera gives no sign
+    of a frame waiting, so a step runs only while the longest step so far still ends
+    before the frame is due). The poses do not change, only where the time goes; a
+    frame that arrives during a step waits for it (not counted in its ``total``).
+
+    Parameters
+    ----------
+    ready : callable or None
+        Whether the reader has the next frame.
+    fps : float or None
+        The camera's frame rate (None: not a camera).
+    """
+
+    def __init__(self, ready: Callable[[], bool] | None, fps: float | None) -> None:
+        self._ready = ready
+        self._period = None if fps is None or fps <= 0 else 1.0 / fps
+        self._due: float | None = None
+        self._longest = 0.0
+
+    def arrived(self, wait_s: float) -> None:
+        """A frame came after the loop waited ``wait_s`` for it."""
+        paced = self._period is not None and wait_s > 0.001  # the camera sets the pace
+        self._due = time.perf_counter() + self._period if paced else None  # type: ignore[operator]
+
+    def run(self, tracker: Tracker) -> float:
+        """Run deferred steps until the next frame is due or none are left; the
+        milliseconds they took."""
+        spent = 0.0
+        while not self._frame_due():
+            ran = tracker.run_deferred_step()
+            if ran == 0.0:
+                break
+            spent += ran
+            self._longest = max(self._longest, ran / 1000.0)
+        return spent
+
+    def _frame_due(self) -> bool:
+        if self._ready is not None:
+            return self._ready()
+        return self._due is None or time.perf_counter() + self._longest >= self._due
+
+
 def track_source(
     source: Source,
     tracker: Tracker,
@@ -194,12 +243,16 @@ def track_source(
                     contextlib.closing(VideoWriter(folder / "overlay.mp4", fps))
                 )
         interrupted, waited = False, 0.0
+        live = source.kind in LIVE_CAMERAS
+        idle = IdleTime(reader.ready if reader is not None else None, fps if live else None)
         loop_started = time.perf_counter()
         try:
             while True:
+                between = idle.run(tracker)
                 clock = time.perf_counter()
                 item = next(frames, None)
                 wait = time.perf_counter() - clock
+                idle.arrived(wait)
                 waited += wait
                 if item is None:
                     break
@@ -210,6 +263,8 @@ def track_source(
                 record = result.as_record()
                 # The time this frame's input kept the loop waiting (not in "total").
                 record["timing_ms"]["read"] = round(1000.0 * wait, 3)
+                if between > 0.0:
+                    record["timing_ms"]["between"] = round(between, 3)
                 if poses is not None:
                     poses.write(json.dumps(record) + "\n")
                     poses.flush()
