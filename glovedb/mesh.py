@@ -318,8 +318,9 @@ def skin(mesh: HandMesh, matrices: ArrayLike) -> NDArray[np.float64]:
     matrices = as_array("matrices", matrices, (None, N_BONES, 3, 4), np.float64)
     vertices = np.empty((len(matrices), len(mesh.rest_vertices_m), 3))
     # A compiled loop over each vertex's non-zero weights (at most 3 of 16 on the
-    # generated meshes): 0.1 ms for the 3,771 samples of the tracker's default mesh,
-    # where a (V, 16) @ (16, 12) product and an einsum took 0.16 ms.
+    # generated meshes): 0.08 ms for the 3,771 samples of the tracker's default mesh
+    # on the AMD machine of docs/tracker.md, where a (V, 16) @ (16, 12) product and an
+    # einsum took 0.17 ms.
     _mesh_kernels.blend_skin(
         np.ascontiguousarray(mesh.weights, dtype=np.float32), np.ascontiguousarray(matrices),
         np.ascontiguousarray(mesh.rest_vertices_m, dtype=np.float64), vertices,

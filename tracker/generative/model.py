@@ -189,10 +189,10 @@ class HandSamples:
         """The same samples re-rested for a personal hand.
 
         What does not depend on the proportions (the skinning weights and their bone
-        lists, the model's rest transforms) is carried over where already computed:
-        a calibrating fit makes new samples at every step, and the tracker new samples
-        from its model's at every calibrating frame (computing them there each time
-        cost 0.8 ms a frame), so they are computed here once if not yet.
+        lists, the model's rest transforms) is computed once, on these samples, and
+        carried over: a calibrating fit makes new samples at every step, and the
+        tracker makes new ones from its model's at every calibrating frame (computing
+        them for each cost 0.8 ms a frame).
         """
         samples = replace(
             self, mesh=proportioned_mesh(self.model, proportions), proportions=proportions

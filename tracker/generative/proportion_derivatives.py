@@ -2,8 +2,9 @@
 
 While a user's proportions are estimated, the fit's data and silhouette rows also need
 each sample's derivative by the 7 proportions
-(:meth:`glovedb.proportions.HandProportions.as_vector`). They are forward differences:
-the samples of the hand with the proportions and with each one stepped, re-rested and
+(:meth:`glovedb.proportions.HandProportions.as_vector`). They are forward differences
+(backward for a factor at the top of its range, which a step up would leave): the
+samples of the hand with the proportions and with each one stepped, re-rested and
 skinned as :func:`~glovedb.proportions.proportioned_mesh` and
 :func:`~glovedb.mesh.skin` would. Per bone only the 3 x 4 re-resting and posing maps
 differ between the eight hands, so they are computed once (the eight skeletons'
