@@ -65,7 +65,7 @@ from tracker.background import DeferredLookup, Job, carried_start
 from tracker.classify import ColorTable, nominal_table
 from tracker.frames import Frame
 from tracker.generative.fit import FitSettings, FrameFit, fit_frame, fit_frame_steps
-from tracker.generative.model import HandPose, PosedHand, hand_samples
+from tracker.generative.model import HandPose, HandSamples, PosedHand, hand_samples
 from tracker.generative.observation import Observation, observe
 from tracker.generative.visibility import keypoint_visibility
 from tracker.icp import IcpResult, color_icp
@@ -469,8 +469,11 @@ class Tracker(Closing):
         return self._mesh
 
     def _set_proportions(self, proportions: HandProportions) -> None:
-        self.samples = self._model_samples.with_proportions(proportions)
-        self.skeleton = self.samples.skeleton
+        self._set_samples(self._model_samples.with_proportions(proportions))
+
+    def _set_samples(self, samples: HandSamples) -> None:
+        self.samples = samples
+        self.skeleton = samples.skeleton
         self._mesh = None
 
     def _warm_up(self) -> None:
@@ -612,7 +615,9 @@ class Tracker(Closing):
             return self._not_found(prepared, timing, started)
         best = min(trusted, key=lambda fit: fit.energy)
         if self.calibrating and best.proportion_information is not None:
-            self._set_proportions(best.proportions)
+            # The fit's last samples are the model's re-rested with these proportions
+            # (and keep what was computed on them: rest transforms, finger cones).
+            self._set_samples(best.hand.samples)
             self._proportion_information = best.proportion_information
             self._calibrated += 1
         hand = best.hand

@@ -26,6 +26,10 @@ def _track(database, sequence, out, settings=None):
         np.testing.assert_array_equal(tracker.mesh.rest_vertices_m, expected.rest_vertices_m)
         np.testing.assert_array_equal(tracker.skeleton.offsets_m, expected.skeleton.offsets_m)
         np.testing.assert_array_equal(tracker.skeleton.lengths_m, expected.skeleton.lengths_m)
+        # The fit's samples, which the tracker keeps from its last calibrating frame,
+        # are the model's samples re-rested with the proportions.
+        samples = proportioned_mesh(tracker.samples.model, tracker.proportions)
+        np.testing.assert_array_equal(tracker.samples.mesh.rest_vertices_m, samples.rest_vertices_m)
     return evaluate(out / POSES_FILE, sequence / "groundtruth.jsonl")
 
 
