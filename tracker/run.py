@@ -154,8 +154,9 @@ class IdleTime:
 
     def arrived(self, wait_s: float) -> None:
         """A frame came after the loop waited ``wait_s`` for it."""
-        paced = self._period is not None and wait_s > 0.001  # the camera sets the pace
-        self._due = time.perf_counter() + self._period if paced else None  # type: ignore[operator]
+        self._due = None
+        if self._period is not None and wait_s > 0.001:  # the camera sets the pace
+            self._due = time.perf_counter() + self._period
 
     def run(self, tracker: Tracker) -> float:
         """Run deferred steps until the next frame is due or none are left; the
