@@ -188,7 +188,8 @@ def track_source(
     progress: Callable[[Iterator[Any], int | None], Iterator[Any]] | None = None,
 ) -> RunSummary:
     """Track every frame of ``source``, write the outputs into ``out`` and hand each
-    frame's record to ``sinks``.
+    frame's record to ``sinks``. Where the loop would wait for its next frame, the
+    tracker's deferred lookup steps use the time (:class:`IdleTime`).
 
     Parameters
     ----------
