@@ -256,7 +256,7 @@ def test_deferred_steps_run_while_the_next_frame_is_not_there(open_pinch_power_d
     database = open_pinch_power_database
     in_turn = _records(database, open_source(sequence), read_ahead=0, out=tmp_path / "turn")
     source = open_source(sequence)
-    slow_reader = replace(source, frames=_paced(source.frames, 0.1))
+    slow_reader = replace(source, frames=_paced(source.frames, 0.2))
     source = open_source(sequence)
     camera = replace(source, kind="realsense", fps=5.0, frames=_paced(source.frames, 0.2))
     for name, paced, read_ahead in (("reader", slow_reader, 2), ("camera", camera, 0)):
