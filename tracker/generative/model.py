@@ -421,9 +421,8 @@ class PosedHand:
         rows = np.empty((len(ids), N_PARAMS))
         _kernels.plane_rows(
             ids, targets, self._bones, self._bone_weights, self._rest, self._skinning, MOVERS,
-            self._axes_hand,
-            self._pivots_hand, self._rotation, self.pose.translation_m, self.points_m,
-            self.normals, distance, rows,
+            self._axes_hand, self._pivots_hand, self._rotation, self.pose.translation_m,
+            self.points_m, self.normals, distance, rows,
         )  # fmt: skip
         return distance, rows
 
